@@ -1,0 +1,1 @@
+"""The paper's baselines as method definitions on the shared core: vanilla SAC and SAC+HER+PER."""

@@ -1,0 +1,4 @@
+import os
+
+# Keep tests deterministic and polite on a 2-core machine.
+os.environ.setdefault("OMP_NUM_THREADS", "1")
