@@ -1,1 +1,5 @@
-"""The three Panda tasks of the paper, rebuilt as ManiSkill3 environments (registered on import)."""
+"""The three Panda tasks of the paper, rebuilt as ManiSkill3 environments (registered on import).
+
+Each task module registers its env id with ManiSkill/gymnasium when imported; add new tasks here.
+"""
+from tasks import reach_target  # noqa: F401  (ReachTarget-v1)

@@ -1,0 +1,86 @@
+"""ReachTarget-v1: move the Panda's TCP to the red ball, ignoring two distractor balls (RLBench's reach_target)."""
+from __future__ import annotations
+
+import torch
+
+from mani_skill.utils.registration import register_env
+from mani_skill.utils.structs import Pose
+
+from tasks.common import DEFAULT_MAX_EPISODE_STEPS, PandaGoalEnv, build_primitive
+
+
+@register_env("ReachTarget-v1", max_episode_steps=DEFAULT_MAX_EPISODE_STEPS)
+class ReachTargetEnv(PandaGoalEnv):
+    """
+    **Task Description:**
+    Move the Panda's tool centre point (TCP, between the fingers) to the red ball. A magenta and a pink
+    ball are distractors. The balls are markers without collision, so the arm never gets blocked.
+
+    **Randomizations:**
+    - the three ball centres are sampled uniformly in the box ``BALL_BOX_LOW``..``BALL_BOX_HIGH``
+      (x in [-0.25, 0.10], y in [-0.25, 0.25], z in [0.05, 0.35] m; world frame, robot base at x = -0.615,
+      table top at z = 0), all reachable by the Panda;
+    - ball centres are at least ``MIN_BALL_SEPARATION`` (0.10 m) apart, so a TCP within tolerance of the red
+      ball is never within tolerance of a distractor, and the red ball is at least ``MIN_START_DISTANCE``
+      (0.15 m) from the TCP's rest position, so no episode starts solved (rejection sampling, batched);
+    - the robot's rest joint angles get Gaussian noise (``robot_init_qpos_noise``, default 0.02 rad).
+
+    **Success Conditions:**
+    - the TCP is within ``goal_tolerance`` = 0.05 m of the red ball centre
+      (achieved_goal = TCP position, desired_goal = red ball position).
+    """
+
+    goal_tolerance = 0.05
+    BALL_RADIUS = 0.02
+    BALL_BOX_LOW = (-0.25, -0.25, 0.05)
+    BALL_BOX_HIGH = (0.10, 0.25, 0.35)
+    MIN_BALL_SEPARATION = 0.10
+    MIN_START_DISTANCE = 0.15
+    REST_TCP_POS = (0.012, 0.0, 0.182)  # TCP at the noiseless Panda rest pose (measured; qpos noise moves it a few cm)
+    _MAX_SAMPLING_ROUNDS = 100
+
+    def _load_scene(self, options: dict):
+        super()._load_scene(options)
+        colors = {"target": (1, 0, 0, 1), "distractor_magenta": (1, 0, 1, 1), "distractor_pink": (1, 0.6, 0.7, 1)}
+        self.balls = [
+            build_primitive(self.scene, name, "sphere", self.BALL_RADIUS, color, body_type="kinematic",
+                            collision=False)
+            for name, color in colors.items()
+        ]
+        self.target = self.balls[0]
+
+    def _sample_ball_positions(self, b: int) -> torch.Tensor:
+        """(b, 3 balls, 3) centres satisfying the separation rules, by batched rejection sampling."""
+        low = torch.tensor(self.BALL_BOX_LOW, device=self.device)
+        high = torch.tensor(self.BALL_BOX_HIGH, device=self.device)
+        rest = torch.tensor(self.REST_TCP_POS, device=self.device)
+        pairs = [(0, 1), (0, 2), (1, 2)]
+        pos = low + torch.rand((b, 3, 3), device=self.device) * (high - low)
+        for _ in range(self._MAX_SAMPLING_ROUNDS):
+            bad = torch.linalg.norm(pos[:, 0] - rest, dim=-1) < self.MIN_START_DISTANCE
+            for i, j in pairs:
+                bad |= torch.linalg.norm(pos[:, i] - pos[:, j], dim=-1) < self.MIN_BALL_SEPARATION
+            if not bool(bad.any()):
+                return pos
+            fresh = low + torch.rand((b, 3, 3), device=self.device) * (high - low)
+            pos = torch.where(bad[:, None, None], fresh, pos)
+        raise RuntimeError("could not place the ReachTarget balls; the bounding box is too small")
+
+    def _initialize_episode(self, env_idx: torch.Tensor, options: dict):
+        with torch.device(self.device):
+            super()._initialize_episode(env_idx, options)
+            pos = self._sample_ball_positions(len(env_idx))
+            for k, ball in enumerate(self.balls):
+                ball.set_pose(Pose.create_from_pq(p=pos[:, k], q=[1, 0, 0, 0]))
+
+    def _achieved_goal(self):
+        return self.agent.tcp.pose.p
+
+    def _desired_goal(self):
+        return self.target.pose.p
+
+    def _object_pose(self):
+        return self.target.pose.raw_pose
+
+    def _distractor_positions(self):
+        return torch.cat([self.balls[1].pose.p, self.balls[2].pose.p], dim=-1)
