@@ -3,3 +3,4 @@
 Each task module registers its env id with ManiSkill/gymnasium when imported; add new tasks here.
 """
 from tasks import reach_target  # noqa: F401  (ReachTarget-v1)
+from tasks import close_microwave  # noqa: F401  (CloseMicrowave-v1)

@@ -1,0 +1,190 @@
+"""CloseMicrowave-v1: push a microwave's side-hinged door shut (the paper's target task)."""
+from __future__ import annotations
+
+import numpy as np
+import sapien
+import torch
+
+from mani_skill.utils.registration import register_env
+from mani_skill.utils.structs import Pose
+
+from tasks.common import DEFAULT_MAX_EPISODE_STEPS, PandaGoalEnv
+
+# x-axis -> +z: a joint frame with this rotation turns about the vertical (joint axis = frame x-axis).
+_Q_X_TO_Z = [float(np.sqrt(0.5)), 0.0, -float(np.sqrt(0.5)), 0.0]
+
+
+@register_env("CloseMicrowave-v1", max_episode_steps=DEFAULT_MAX_EPISODE_STEPS)
+class CloseMicrowaveEnv(PandaGoalEnv):
+    """
+    **Task Description:**
+    Close the door of a microwave standing on the table in front of the Panda. The microwave is a box
+    shell (bottom, top, back and two side walls; the front facing the robot is open) built from
+    primitive collision boxes, 0.26 m deep (x) x 0.30 m wide (y) x 0.22 m tall. Its door (0.30 m wide,
+    1.5 cm thick, with a handle bar near its free edge on the outer face) turns on a vertical revolute
+    hinge at the front-left corner (the corner nearer the robot's centre line, -y side). The hinge angle
+    is 0 when closed and grows as the free edge swings towards the robot (limits [0, pi/2]). The door
+    is lifted 1 cm above the table and its hinge has damping 1.0 N m s/rad and friction 0.1 N m, so it
+    holds its angle when nothing touches it and a push of a few newtons closes it.
+
+    The resting TCP (near (0, 0, 0.17)) lies outside the door (on its outer side) at every initial
+    angle and pose, so the robot never starts inside the microwave's swing.
+
+    **Randomizations:**
+    - the microwave body's centre is placed uniformly in x in [0.15, 0.21], y in [0.25, 0.31] (metres,
+      world frame; table top at z = 0, robot base at x = -0.615), on the table
+    - its yaw is uniform in [-0.1, 0.1] rad (0 = opening facing the robot, i.e. facing -x)
+    - the door's initial angle is uniform in [0.4, 1.2] rad open, at rest
+    - the robot's joints get the usual ManiSkill Gaussian noise (``robot_init_qpos_noise``, 0.02 rad)
+
+    **Success Conditions:**
+    - the door angle is below 0.1 rad. Equivalently (and this is how it is evaluated): the achieved
+      goal, the midpoint of the door's free edge on its inner face (3-D, world frame; at radius
+      L = 0.30 m from the hinge axis), lies within ``goal_tolerance = 2 L sin(0.05) ~= 0.0300 m`` of
+      the desired goal, the same point with the door closed. The chord between the two positions of
+      the point is 2 L sin(angle / 2), so "distance < tolerance" is exactly "angle < 0.1".
+
+    **Observation slots** (see ``tasks.common``): task object pose = the door link's pose, task joint =
+    hinge angle and angular velocity, no distractors.
+
+    **Dense reward:** the common goal term ``1 - tanh(5 * goal_distance)`` plus a reaching term
+    ``0.5 * (1 - tanh(10 * ||tcp - push_point||))`` towards the push point on the door's outer face beside
+    the handle; 2.0 on success.
+    """
+
+    # Body (shell) dimensions, metres.
+    BODY_DEPTH = 0.26  # x, away from the robot
+    BODY_WIDTH = 0.30  # y
+    BODY_HEIGHT = 0.22  # z
+    WALL = 0.01
+    # Door.
+    DOOR_THICKNESS = 0.015
+    DOOR_GAP = 0.004  # between the closed door's inner face and the shell's front edges
+    DOOR_LIFT = 0.01  # above the table (a door resting on the table rubs)
+    DOOR_LENGTH = BODY_WIDTH  # hinge axis to free edge
+    DOOR_HEIGHT = BODY_HEIGHT - DOOR_LIFT - 0.004
+    HINGE_DAMPING = 1.0
+    HINGE_FRICTION = 0.1
+    HINGE_LIMITS = (0.0, float(np.pi / 2))
+    # Handle bar on the outer face near the free edge (door frame: x = -thickness is the outer face).
+    HANDLE_HALF_SIZE = (0.0125, 0.0075, 0.06)
+    HANDLE_INSET = 0.03  # handle centre, from the free edge
+    PUSH_INSET = 0.075  # push point (outer face, hinge side of the handle), from the free edge
+
+    # Randomization ranges (documented in the class docstring; tests check them).
+    CENTER_X_RANGE = (0.15, 0.21)
+    CENTER_Y_RANGE = (0.25, 0.31)
+    YAW_RANGE = (-0.1, 0.1)
+    INIT_ANGLE_RANGE = (0.4, 1.2)
+    SUCCESS_ANGLE = 0.1
+
+    goal_tolerance = float(2 * DOOR_LENGTH * np.sin(SUCCESS_ANGLE / 2))
+
+    def _load_scene(self, options: dict):
+        super()._load_scene(options)
+        hx, hy, hz = self.BODY_DEPTH / 2, self.BODY_WIDTH / 2, self.BODY_HEIGHT / 2
+        t = self.WALL
+        render = self.scene.can_render()
+        if render:
+            body_mat = sapien.render.RenderMaterial(base_color=[0.75, 0.75, 0.78, 1.0])
+            door_mat = sapien.render.RenderMaterial(base_color=[0.15, 0.15, 0.18, 1.0])
+
+        builder = self.scene.create_articulation_builder()
+        body = builder.create_link_builder()
+        body.set_name("body")
+        walls = [  # (centre, half size): bottom, top, back, -y side, +y side
+            ([0, 0, t / 2], [hx, hy, t / 2]),
+            ([0, 0, self.BODY_HEIGHT - t / 2], [hx, hy, t / 2]),
+            ([hx - t / 2, 0, hz], [t / 2, hy, hz]),
+            ([0, -hy + t / 2, hz], [hx, t / 2, hz]),
+            ([0, hy - t / 2, hz], [hx, t / 2, hz]),
+        ]
+        for centre, half in walls:
+            body.add_box_collision(sapien.Pose(centre), half)
+            if render:
+                body.add_box_visual(sapien.Pose(centre), half, material=body_mat)
+
+        door = builder.create_link_builder(body)
+        door.set_name("door")
+        L, th, hd = self.DOOR_LENGTH, self.DOOR_THICKNESS, self.DOOR_HEIGHT
+        # Door frame: origin on the hinge axis at the door's bottom; closed, it runs along +y, its inner
+        # face at x = 0 and its outer face (towards the robot) at x = -thickness.
+        parts = [
+            ([-th / 2, L / 2, hd / 2], [th / 2, L / 2, hd / 2]),
+            ([-th - self.HANDLE_HALF_SIZE[0], L - self.HANDLE_INSET, hd / 2], list(self.HANDLE_HALF_SIZE)),
+        ]
+        for centre, half in parts:
+            door.add_box_collision(sapien.Pose(centre), half)
+            if render:
+                door.add_box_visual(sapien.Pose(centre), half, material=door_mat)
+        hinge_in_body = sapien.Pose([-hx - self.DOOR_GAP, -hy, self.DOOR_LIFT], _Q_X_TO_Z)
+        door.set_joint_name("door_hinge")
+        door.set_joint_properties(
+            "revolute",
+            limits=[list(self.HINGE_LIMITS)],
+            pose_in_parent=hinge_in_body,
+            pose_in_child=sapien.Pose([0, 0, 0], _Q_X_TO_Z),
+            damping=self.HINGE_DAMPING,
+        )
+        builder.initial_pose = sapien.Pose(p=[0.5, 0.6, 0])  # clear of the robot until reset places it
+        self.microwave = builder.build(name="microwave", fix_root_link=True)
+        self.hinge = self.microwave.active_joints_map["door_hinge"]
+        self.hinge.set_friction(self.HINGE_FRICTION)  # the builder's friction argument is ignored
+        self.door = self.microwave.links_map["door"]
+
+        # Fixed points: in the door frame (free edge, push point) and the body frame (closed free edge).
+        self._free_edge_local = [0.0, L, hd / 2]
+        self._push_local = [-th, L - self.PUSH_INSET, hd / 2]
+        self._closed_free_edge_body = [-hx - self.DOOR_GAP, -hy + L, self.DOOR_LIFT + hd / 2]
+
+    def _initialize_episode(self, env_idx: torch.Tensor, options: dict):
+        super()._initialize_episode(env_idx, options)
+        with torch.device(self.device):
+            b = len(env_idx)
+
+            def uniform(lo_hi, n):
+                lo, hi = lo_hi
+                return lo + (hi - lo) * torch.rand(n)
+
+            p = torch.zeros((b, 3))
+            p[:, 0] = uniform(self.CENTER_X_RANGE, b)
+            p[:, 1] = uniform(self.CENTER_Y_RANGE, b)
+            yaw = uniform(self.YAW_RANGE, b)
+            q = torch.zeros((b, 4))
+            q[:, 0] = torch.cos(yaw / 2)
+            q[:, 3] = torch.sin(yaw / 2)
+            self.microwave.set_pose(Pose.create_from_pq(p=p, q=q))
+            angle = uniform(self.INIT_ANGLE_RANGE, b)
+            self.microwave.set_qpos(angle[:, None])
+            self.microwave.set_qvel(torch.zeros((b, 1)))
+
+    # ------------------------------------------------------------------ goals and evaluation
+    def _local_point(self, pose: Pose, local) -> torch.Tensor:
+        """World position of a fixed point given in the frame of ``pose`` (batched)."""
+        pt = torch.tensor(local, dtype=torch.float32, device=self.device)
+        return (pose * Pose.create_from_pq(p=pt)).p
+
+    def _achieved_goal(self) -> torch.Tensor:
+        return self._local_point(self.door.pose, self._free_edge_local)
+
+    def _desired_goal(self) -> torch.Tensor:
+        return self._local_point(self.microwave.pose, self._closed_free_edge_body)
+
+    def push_point(self) -> torch.Tensor:
+        """(N, 3) point on the door's outer face beside the handle (hinge side), world frame."""
+        return self._local_point(self.door.pose, self._push_local)
+
+    def _evaluate_extra(self) -> dict:
+        return dict(door_angle=self.microwave.qpos[:, 0].clone())
+
+    # ------------------------------------------------------------------ observations
+    def _object_pose(self) -> torch.Tensor:
+        return self.door.pose.raw_pose
+
+    def _joint_state(self) -> torch.Tensor:
+        return torch.cat([self.microwave.qpos[:, :1], self.microwave.qvel[:, :1]], dim=-1)
+
+    # ------------------------------------------------------------------ rewards
+    def _dense_shaping(self, info: dict) -> torch.Tensor:
+        reach = torch.linalg.norm(self.agent.tcp.pose.p - self.push_point(), dim=-1)
+        return 0.5 * (1.0 - torch.tanh(10.0 * reach))
