@@ -1,0 +1,124 @@
+"""The paper's method (Algorithm 1): prioritized buffer R + uniform success buffer E.
+
+R (prioritized, new rows at max priority) holds real and k hindsight copies of every
+transition. E (uniform) holds only REAL transitions whose reward is 1 (line "if r_t = 1
+then store in E"); hindsight successes never enter E. Sampling:
+
+* ``dual_mode="choose"`` (Algorithm 1): the whole mini-batch comes from R with probability
+  r, from E with probability e = 1 - r;
+* ``dual_mode="split"``: every mini-batch has round(B*r) rows from R and the rest from E.
+
+While E is empty, R serves everything. Priority updates only touch R rows.
+"""
+from __future__ import annotations
+
+from typing import Dict, Optional
+
+import numpy as np
+
+from .config import ConfigError
+from .replay.base import Batch, Episode
+from .replay.buffer import Handle, to_batch
+from .replay.her import episode_transitions, real_transitions
+from .replay.method import BufferMethod
+
+
+def _successes(rows: Dict[str, np.ndarray]) -> Dict[str, np.ndarray]:
+    keep = np.isclose(rows["reward"], 1.0)
+    return {k: v[keep] for k, v in rows.items()}
+
+
+class DualBufferReplay(BufferMethod):
+    uses_goals = True
+
+    def __init__(self, cfg, spec, rng, device="cpu"):
+        super().__init__(cfg, spec, rng, device)
+        r = float(self.rcfg.ratio[0])
+        if not 0.0 <= r <= 1.0:
+            raise ConfigError(f"ratio must be two non-negative numbers summing to 1, got {self.rcfg.ratio}")
+        if self.rcfg.dual_mode not in ("choose", "split"):
+            raise ConfigError(f"unknown dual_mode {self.rcfg.dual_mode!r} (choose 'choose' or 'split')")
+        self.r = r
+        self.mode = self.rcfg.dual_mode
+        self._buffer("R", prioritized=True)
+        self._buffer("E", prioritized=False)
+        self._batches = 0      # sample() calls
+        self._rows = 0         # rows served by sample()
+        self._rows_from_R = 0
+        self._batches_from_R = 0  # choose mode: whole batches from R
+
+    @property
+    def E(self):
+        return self.buffers["E"]
+
+    def add_episode(self, ep: Episode) -> None:
+        self._check_goal_episode(ep)
+        real = real_transitions(ep)
+        self._check_rows(real)
+        rows = episode_transitions(ep, self.rcfg.her_strategy, self.rcfg.her_k, self.rng, self.reward_fn)
+        self.main.add(rows)
+        succ = _successes(real)
+        if len(succ["reward"]):
+            self.E.add(succ)
+
+    def add_demo_episode(self, ep: Episode) -> None:
+        """Seed E (only) with the real reward-1 transitions of e.g. a scripted-solver episode."""
+        self._check_goal_episode(ep)
+        real = real_transitions(ep)
+        self._check_rows(real)
+        succ = _successes(real)
+        if len(succ["reward"]):
+            self.E.add(succ)
+
+    def sample(self, batch_size: Optional[int] = None) -> Batch:
+        B = int(batch_size or self.batch_size)
+        R, E = self.main, self.E
+        use_weights = R.sampler.is_weights
+        if len(R) == 0:  # only demos so far: E is all there is
+            return self._from_E(B, use_weights)
+        if self.mode == "choose":
+            from_R = self.rng.random() < self.r or len(E) == 0
+            self._count(B, B if from_R else 0)
+            if from_R:
+                return R.sample(B, self.rng, self.device, source="R")
+            return self._from_E(B, use_weights)
+        # split
+        nR = B if len(E) == 0 else int(round(B * self.r))
+        self._count(B, nR)
+        if nR == B:
+            return R.sample(B, self.rng, self.device, source="R")
+        if nR == 0:
+            return self._from_E(B, use_weights)
+        rows_R, idx, w = R.sample_arrays(nR, self.rng)
+        rows_E, _, _ = E.sample_arrays(B - nR, self.rng)
+        rows = {k: np.concatenate([rows_R[k], rows_E[k]]) for k in rows_R}
+        if use_weights:
+            w = np.concatenate([w, np.ones(B - nR, np.float32)])
+        return to_batch(rows, w, Handle(idx, slice(0, nR), "R"), self.device)
+
+    def _from_E(self, B: int, use_weights: bool) -> Batch:
+        rows, _, _ = self.E.sample_arrays(B, self.rng)
+        w = np.ones(B, np.float32) if use_weights else None
+        return to_batch(rows, w, Handle(np.zeros(0, np.int64), slice(0, 0), "E"), self.device)
+
+    def _count(self, B: int, nR: int) -> None:
+        self._batches += 1
+        self._rows += B
+        self._rows_from_R += nR
+        self._batches_from_R += int(nR == B)
+
+    def stats(self) -> Dict[str, float]:
+        out = super().stats()
+        out["frac_batches_from_R"] = self._batches_from_R / self._batches if self._batches else float("nan")
+        out["frac_rows_from_R"] = self._rows_from_R / self._rows if self._rows else float("nan")
+        return out
+
+    def _extra_state(self) -> dict:
+        return {"batches": self._batches, "rows": self._rows, "rows_from_R": self._rows_from_R,
+                "batches_from_R": self._batches_from_R}
+
+    def _load_extra_state(self, state: dict) -> None:
+        self._batches = int(state.get("batches", 0))
+        self._rows = int(state.get("rows", 0))
+        self._rows_from_R = int(state.get("rows_from_R", 0))
+        self._batches_from_R = int(state.get("batches_from_R", 0))
