@@ -69,6 +69,7 @@ class RunConfig:
     max_episode_steps: Optional[int] = None  # None: the task's default (150, Table 3)
     control_mode: Optional[str] = None    # None: the task's default (pd_joint_delta_pos)
     sim_backend: str = "physx_cpu"
+    reward_mode: str = "sparse"           # ManiSkill reward mode; the paper's setting is sparse (+1 on success)
     num_envs: int = 1
     eval_every: int = 5_000               # env steps between evaluations
     eval_episodes: int = 10               # fixed evaluation seeds, deterministic policy

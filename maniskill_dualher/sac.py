@@ -1,0 +1,226 @@
+"""Soft actor-critic, readable top to bottom (in the spirit of CleanRL's sac_continuous_action.py).
+
+Two variants behind one switch (``SACConfig.variant``):
+
+* ``"paper"`` (Haarnoja et al. 2018a, the paper's Fig. 1 / Eqs. 2-8): tanh-Gaussian policy, twin soft Q
+  critics, a state-value network V and its Polyak-averaged target V̄, fixed temperature α.
+      y      = r + γ (1 - d) V̄(s')
+      V(s)  <- E_a~π[min_i Q_i(s, a) - α log π(a|s)]
+* ``"modern"`` (Haarnoja et al. 2018b, as in SB3/CleanRL): twin critics with Polyak targets, no V,
+  learned α towards a target entropy of -|A|.
+      y      = r + γ (1 - d) (min_i Q̄_i(s', a') - α log π(a'|s')),  a' ~ π(s')
+
+Speed: the two critics are one ensemble evaluated with batched matmuls, all losses are summed and
+back-propagated once (losses touch disjoint parameters because the actor loss reads detached critic
+weights), one fused Adam steps every parameter, and the Polyak update is a single foreach lerp.
+
+The update knows nothing about replay: it takes a Batch and returns one |TD| per sample,
+summed over both critics (the paper's Eq. 9), for whoever wants priorities.
+"""
+from __future__ import annotations
+
+import math
+from typing import Dict, List, Optional, Tuple
+
+import numpy as np
+import torch
+import torch.nn as nn
+import torch.nn.functional as F
+
+from .config import SACConfig
+from .replay.base import Batch
+
+LOG_STD_MIN, LOG_STD_MAX = -5.0, 2.0
+
+
+def mlp(in_dim: int, hidden: Tuple[int, ...], out_dim: int) -> nn.Sequential:
+    layers: List[nn.Module] = []
+    d = in_dim
+    for h in hidden:
+        layers += [nn.Linear(d, h), nn.ReLU()]
+        d = h
+    layers.append(nn.Linear(d, out_dim))
+    return nn.Sequential(*layers)
+
+
+class EnsembleMLP(nn.Module):
+    """E independent MLPs evaluated together with batched matmuls (one kernel per layer, not E)."""
+
+    def __init__(self, n: int, in_dim: int, hidden: Tuple[int, ...], out_dim: int):
+        super().__init__()
+        dims = [in_dim, *hidden, out_dim]
+        self.n = n
+        self.weights = nn.ParameterList()
+        self.biases = nn.ParameterList()
+        for i, o in zip(dims[:-1], dims[1:]):
+            bound = 1.0 / math.sqrt(i)  # nn.Linear's default initialisation, per member
+            self.weights.append(nn.Parameter(torch.empty(n, i, o).uniform_(-bound, bound)))
+            self.biases.append(nn.Parameter(torch.empty(n, 1, o).uniform_(-bound, bound)))
+
+    def forward(self, x: torch.Tensor, detach: bool = False) -> torch.Tensor:
+        """x (B, in) -> (E, B, out). ``detach``: gradients reach x but not the weights."""
+        h = x.unsqueeze(0).expand(self.n, *x.shape)
+        last = len(self.weights) - 1
+        for k, (w, b) in enumerate(zip(self.weights, self.biases)):
+            if detach:
+                w, b = w.detach(), b.detach()
+            h = torch.baddbmm(b, h, w)
+            if k < last:
+                h = F.relu(h)
+        return h
+
+
+class Actor(nn.Module):
+    """Tanh-squashed Gaussian policy with actions in [-1, 1]^A."""
+
+    def __init__(self, obs_dim: int, act_dim: int, hidden: Tuple[int, ...]):
+        super().__init__()
+        self.net = mlp(obs_dim, hidden, 2 * act_dim)
+
+    def forward(self, obs: torch.Tensor) -> Tuple[torch.Tensor, torch.Tensor]:
+        """Reparameterised sample and its log-probability (with the tanh correction)."""
+        mu, log_std = self.net(obs).chunk(2, dim=-1)
+        log_std = torch.clamp(log_std, LOG_STD_MIN, LOG_STD_MAX)
+        eps = torch.randn_like(mu)
+        u = mu + log_std.exp() * eps
+        a = torch.tanh(u)
+        # log N(u; mu, std) - sum log(1 - tanh(u)^2), the latter in a numerically stable form
+        logp = (-0.5 * eps.pow(2) - log_std - 0.5 * math.log(2 * math.pi)).sum(-1)
+        logp = logp - (2.0 * (math.log(2.0) - u - F.softplus(-2.0 * u))).sum(-1)
+        return a, logp
+
+    def mean_action(self, obs: torch.Tensor) -> torch.Tensor:
+        mu, _ = self.net(obs).chunk(2, dim=-1)
+        return torch.tanh(mu)
+
+
+class SAC(nn.Module):
+    def __init__(self, obs_dim: int, act_dim: int, cfg: SACConfig, device: str = "cpu"):
+        super().__init__()
+        self.cfg = cfg
+        self.obs_dim, self.act_dim = obs_dim, act_dim
+        self.paper = cfg.variant == "paper"
+        self.actor = Actor(obs_dim, act_dim, cfg.hidden)
+        self.q = EnsembleMLP(2, obs_dim + act_dim, cfg.hidden, 1)
+        if self.paper:
+            self.v = mlp(obs_dim, cfg.hidden, 1)
+            self.v_target = mlp(obs_dim, cfg.hidden, 1)
+            self.v_target.load_state_dict(self.v.state_dict())
+            self._online, self._target = self.v, self.v_target
+        else:
+            self.q_target = EnsembleMLP(2, obs_dim + act_dim, cfg.hidden, 1)
+            self.q_target.load_state_dict(self.q.state_dict())
+            self._online, self._target = self.q, self.q_target
+        self._target.requires_grad_(False)
+        self.learn_alpha = cfg.resolved_learn_alpha()
+        self.log_alpha = nn.Parameter(torch.tensor(math.log(cfg.alpha)), requires_grad=self.learn_alpha)
+        self.target_entropy = -float(act_dim) if cfg.target_entropy is None else float(cfg.target_entropy)
+        self.to(device)
+        self.device = torch.device(device)
+        self.optimizer = self.make_optimizer()
+        self._online_params = list(self._online.parameters())
+        self._target_params = list(self._target.parameters())
+
+    # ------------------------------------------------------------------ acting
+    def make_optimizer(self) -> torch.optim.Optimizer:
+        params = [p for p in self.parameters() if p.requires_grad]
+        try:
+            return torch.optim.Adam(params, lr=self.cfg.lr, fused=True)
+        except (RuntimeError, TypeError):  # fused Adam unavailable on this build/device
+            return torch.optim.Adam(params, lr=self.cfg.lr, foreach=True)
+
+    @torch.no_grad()
+    def act(self, obs: np.ndarray, deterministic: bool = False) -> np.ndarray:
+        x = torch.as_tensor(obs, dtype=torch.float32, device=self.device)
+        a = self.actor.mean_action(x) if deterministic else self.actor(x)[0]
+        return a.cpu().numpy()
+
+    @property
+    def alpha(self) -> torch.Tensor:
+        return self.log_alpha.exp()
+
+    # ------------------------------------------------------------------ update
+    def update(self, batch: Batch, actor_batch: Optional[Batch] = None) -> Tuple[np.ndarray, Dict[str, float]]:
+        """One gradient step on every network. Returns (|TD| summed over critics per sample, logs)."""
+        obs, act, rew, next_obs, done = batch.obs, batch.action, batch.reward, batch.next_obs, batch.done
+        alpha = self.log_alpha.exp().detach()
+        w = batch.weights  # importance-sampling weights or None
+
+        # --- policy at s (for the actor loss, and V's target in the paper variant)
+        pi_obs = obs if actor_batch is None else actor_batch.obs
+        a_pi, logp_pi = self.actor(pi_obs)
+        q_pi = self.q(torch.cat([pi_obs, a_pi], -1), detach=True).min(0).values.squeeze(-1)
+        actor_terms = alpha * logp_pi - q_pi
+        if w is not None and actor_batch is None and not self.cfg.is_weights_critic_only:
+            actor_loss = (w * actor_terms).mean()
+        else:
+            actor_loss = actor_terms.mean()
+
+        # --- critic targets
+        with torch.no_grad():
+            if self.paper:
+                next_v = self.v_target(next_obs).squeeze(-1)
+            else:
+                a_next, logp_next = self.actor(next_obs)
+                q_next = self.q_target(torch.cat([next_obs, a_next], -1)).min(0).values.squeeze(-1)
+                next_v = q_next - alpha * logp_next
+            y = rew + self.cfg.gamma * (1.0 - done) * next_v
+
+        q_sa = self.q(torch.cat([obs, act], -1)).squeeze(-1)  # (2, B)
+        td = q_sa - y  # (2, B)
+        sq = 0.5 * td.pow(2).sum(0)
+        critic_loss = (w * sq).mean() if w is not None else sq.mean()
+
+        loss = actor_loss + critic_loss
+        logs: Dict[str, float] = {}
+        if self.paper:
+            # V(s) <- min_i Q_i(s, a~π) - α log π(a|s), using the same policy sample (Eq. 4)
+            v_target = (q_pi - alpha * logp_pi).detach()
+            if actor_batch is not None:  # V trains on the critic batch; draw a fresh action there
+                with torch.no_grad():
+                    a2, lp2 = self.actor(obs)
+                    v_target = self.q(torch.cat([obs, a2], -1)).min(0).values.squeeze(-1) - alpha * lp2
+            v_sq = 0.5 * (self.v(obs).squeeze(-1) - v_target).pow(2)
+            v_loss = (w * v_sq).mean() if w is not None else v_sq.mean()
+            loss = loss + v_loss
+        if self.learn_alpha:
+            alpha_loss = -(self.log_alpha * (logp_pi.detach() + self.target_entropy)).mean()
+            loss = loss + alpha_loss
+
+        self.optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        self.optimizer.step()
+        with torch.no_grad():
+            torch._foreach_lerp_(self._target_params, self._online_params, self.cfg.tau)
+
+        td_abs = td.detach().abs().sum(0).cpu().numpy()
+        if self._log_now():
+            logs = {
+                "loss/critic": float(critic_loss.detach()),
+                "loss/actor": float(actor_loss.detach()),
+                "alpha": float(alpha),
+                "entropy": float(-logp_pi.detach().mean()),
+                "q_mean": float(q_sa.detach().mean()),
+            }
+            if self.paper:
+                logs["loss/value"] = float(v_loss.detach())
+        return td_abs, logs
+
+    _n_updates = 0
+
+    def _log_now(self) -> bool:
+        self._n_updates += 1
+        return self._n_updates % 250 == 1
+
+    # ------------------------------------------------------------- checkpoint
+    def networks_state(self) -> dict:
+        return {k: v for k, v in self.state_dict().items()}
+
+    def full_state(self) -> dict:
+        return {"networks": self.state_dict(), "optimizer": self.optimizer.state_dict(), "n_updates": self._n_updates}
+
+    def load_full_state(self, state: dict, networks_only: bool = False) -> None:
+        self.load_state_dict(state["networks"])
+        if not networks_only:
+            self.optimizer.load_state_dict(state["optimizer"])
+            self._n_updates = int(state.get("n_updates", 0))
