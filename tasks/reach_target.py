@@ -36,7 +36,7 @@ class ReachTargetEnv(PandaGoalEnv):
     BALL_BOX_HIGH = (0.10, 0.25, 0.35)
     MIN_BALL_SEPARATION = 0.10
     MIN_START_DISTANCE = 0.15
-    REST_TCP_POS = (0.012, 0.0, 0.182)  # TCP at the noiseless Panda rest pose (measured; qpos noise moves it a few cm)
+    REST_TCP_POS = (0.0, 0.0, 0.170)  # TCP at the noiseless Panda rest pose (measured; qpos noise moves it a few cm)
     _MAX_SAMPLING_ROUNDS = 100
 
     def _load_scene(self, options: dict):
