@@ -92,6 +92,14 @@ REWARD_MODES = ("sparse", "dense", "normalized_dense", "none")
 SIM_BACKENDS = ("auto", "cpu", "physx_cpu", "cuda", "gpu", "physx_cuda")
 
 
+def registered_task_ids() -> list:
+    """Ids of all registered ManiSkill envs built on :class:`PandaGoalEnv` (import ``tasks`` first)."""
+    from mani_skill.utils.registration import REGISTERED_ENVS
+
+    return sorted(k for k, spec in REGISTERED_ENVS.items()
+                  if isinstance(spec.cls, type) and issubclass(spec.cls, PandaGoalEnv))
+
+
 def split_goal_obs(x):
     """Split a flat state observation (..., OBS_DIM + 6) into (observation, achieved_goal, desired_goal).
 
@@ -229,6 +237,8 @@ class PandaGoalEnv(BaseEnv):
     provide:
 
     * ``goal_tolerance`` (float, metres): success is ``||achieved - desired|| < goal_tolerance``;
+    * ``GOAL_BOX_LOW``/``GOAL_BOX_HIGH`` (xyz, metres, world frame): documented box holding every
+      desired goal at reset (the tests check it over many seeds);
     * ``_achieved_goal()`` and ``_desired_goal()`` -> ``(N, 3)`` torch tensors;
     * ``_object_pose()`` -> ``(N, 7)``; optionally ``_joint_state()`` -> ``(N, 2)`` (qpos, qvel) and
       ``_distractor_positions()`` -> ``(N, 6)`` (zeros by default);
@@ -240,6 +250,8 @@ class PandaGoalEnv(BaseEnv):
     SUPPORTED_REWARD_MODES = ("sparse", "dense", "normalized_dense", "none")  # sparse is the default
     agent: Panda
     goal_tolerance: float = 0.05
+    GOAL_BOX_LOW: Optional[tuple] = None
+    GOAL_BOX_HIGH: Optional[tuple] = None
 
     def __init__(self, *args, robot_uids="panda", robot_init_qpos_noise=0.02, num_envs=1,
                  obs_mode=None, reward_mode=None, control_mode=None, render_mode=None,

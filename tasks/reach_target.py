@@ -34,6 +34,7 @@ class ReachTargetEnv(PandaGoalEnv):
     BALL_RADIUS = 0.02
     BALL_BOX_LOW = (-0.25, -0.25, 0.05)
     BALL_BOX_HIGH = (0.10, 0.25, 0.35)
+    GOAL_BOX_LOW, GOAL_BOX_HIGH = BALL_BOX_LOW, BALL_BOX_HIGH
     MIN_BALL_SEPARATION = 0.10
     MIN_START_DISTANCE = 0.15
     REST_TCP_POS = (0.0, 0.0, 0.170)  # TCP at the noiseless Panda rest pose (measured; qpos noise moves it a few cm)
