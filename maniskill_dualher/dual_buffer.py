@@ -19,7 +19,7 @@ import numpy as np
 from .config import ConfigError
 from .replay.base import Batch, Episode
 from .replay.buffer import Handle, to_batch
-from .replay.her import episode_transitions, real_transitions
+from .replay.her import concat_rows, real_transitions, relabel
 from .replay.method import BufferMethod
 
 
@@ -55,8 +55,11 @@ class DualBufferReplay(BufferMethod):
         self._check_goal_episode(ep)
         real = real_transitions(ep)
         self._check_rows(real)
-        rows = episode_transitions(ep, self.rcfg.her_strategy, self.rcfg.her_k, self.rng, self.reward_fn)
-        self.main.add(rows)
+        if self.rcfg.her_k > 0:
+            rows = concat_rows(real, relabel(ep, self.rcfg.her_strategy, self.rcfg.her_k, self.rng, self.reward_fn))
+        else:
+            rows = real
+        self.main.add(rows)  # Algorithm 1: real + k hindsight copies, all at max priority
         succ = _successes(real)
         if len(succ["reward"]):
             self.E.add(succ)

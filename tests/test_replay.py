@@ -185,3 +185,13 @@ def test_buffer_batch_is_float32_torch_and_rows_are_consistent():
     assert np.array_equal(b.handle.indices, b.reward.numpy().astype(np.int64))
     buf.update_priorities(b, np.full(32, 5.0))
     assert np.allclose(buf.sampler.tree.leaves(b.handle.indices), np.sqrt(5.0 + 1e-6))
+
+
+def test_partial_rebuild_equals_full_tree():
+    rng = np.random.default_rng(4)
+    t = SumTree(1000)
+    t.update(np.arange(613), rng.random(613))
+    u = SumTree(1000)
+    u.tree[u.P:u.P + 613] = t.tree[t.P:t.P + 613]
+    u.rebuild(613)
+    assert np.array_equal(t.tree, u.tree)

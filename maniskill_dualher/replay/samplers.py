@@ -133,9 +133,9 @@ class PrioritizedSampler:
         leaves = np.asarray(state["leaves"], dtype=np.float64)
         if len(leaves) > self.tree.capacity:
             raise ConfigError(f"checkpoint has {len(leaves)} priorities, capacity is {self.tree.capacity}")
-        self.tree.tree[:] = 0.0
+        self.tree.tree = np.zeros_like(self.tree.tree)  # fresh lazily-mapped zeros, not a full memset
         self.tree.tree[self.tree.P:self.tree.P + len(leaves)] = leaves
-        self.tree.rebuild()
+        self.tree.rebuild(len(leaves))
         self.tree.max_value = float(state["max_value"])
         self._high = len(leaves)
         self.max_priority = float(state["max_priority"])

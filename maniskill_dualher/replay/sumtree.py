@@ -70,10 +70,15 @@ class SumTree:
             node += go_right
         return node - self.P
 
-    def rebuild(self) -> None:
-        """Recompute every internal node from the leaves (after loading leaves)."""
+    def rebuild(self, n_leaves: int | None = None) -> None:
+        """Recompute internal nodes from the leaves (after loading leaves).
+
+        Only ancestors of leaves [0, n_leaves) are touched (the rest are 0 anyway), so a
+        restored 10^7-capacity tree maps memory only for its filled part.
+        """
         tree = self.tree
-        lo = self.P
+        lo, hi = self.P, self.P + (self.P if n_leaves is None else int(n_leaves))
         while lo > 1:
-            tree[lo >> 1:lo] = tree[lo:2 * lo:2] + tree[lo + 1:2 * lo:2]
-            lo >>= 1
+            plo, phi = lo >> 1, (hi + 1) >> 1
+            tree[plo:phi] = tree[2 * plo:2 * phi:2] + tree[2 * plo + 1:2 * phi:2]
+            lo, hi = plo, phi
