@@ -133,7 +133,7 @@ class PrioritizedSampler:
         leaves = np.asarray(state["leaves"], dtype=np.float64)
         if len(leaves) > self.tree.capacity:
             raise ConfigError(f"checkpoint has {len(leaves)} priorities, capacity is {self.tree.capacity}")
-        self.tree.tree = np.zeros_like(self.tree.tree)  # fresh lazily-mapped zeros, not a full memset
+        self.tree.tree = np.zeros(self.tree.tree.shape)  # fresh lazily-mapped zeros (zeros_like would memset)
         self.tree.tree[self.tree.P:self.tree.P + len(leaves)] = leaves
         self.tree.rebuild(len(leaves))
         self.tree.max_value = float(state["max_value"])
