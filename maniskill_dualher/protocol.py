@@ -1,0 +1,154 @@
+"""The paper's multi-task transfer (section 3.1): a chain of stages, each its own run.
+
+Stage 0 trains from scratch; stage i+1 starts from stage i's final networks and, if
+``carry_replay``, its replay buffers (the paper's "prior policy" plus the samples it
+collected). The last stage is the *adaptation* stage (the paper's target task,
+CloseMicrowave, trained 120 epochs instead of 200). HER uses k = 8 in the
+multi-task setting (paper 4.2.2) against 4 for single tasks.
+
+Every stage lives in its own folder ``<chain_dir>/stage<i>-<env>[-r<ratio>]-<hash>``,
+the hash covering the configs of stages 0..i and the carry flag: a killed chain
+resumes at the stage in flight, and two chains that share their first stages (the
+sampling-ratio study varies only the adaptation stage) can share those folders.
+Each stage folder also gets ``lineage.json`` (its position in the chain and its
+parent), which is how the report tells transfer stages from single-task runs.
+"""
+from __future__ import annotations
+
+import copy
+import hashlib
+import json
+import os
+import tempfile
+from pathlib import Path
+from typing import List, Optional, Sequence, Union
+
+from maniskill_dualher.config import ConfigError, RunConfig, format_ratio
+
+PathLike = Union[str, Path]
+
+TASKS = ("ReachTarget-v1", "CloseBox-v1", "CloseMicrowave-v1")
+TRANSFER_ORDER = TASKS                  # paper: ReachTarget -> CloseBox -> CloseMicrowave
+HER_K_SINGLE = 4                        # paper 4.2.1
+HER_K_MULTITASK = 8                     # paper 4.2.2: "k ... was increased from 4 to 8"
+LINEAGE_FILE = "lineage.json"
+
+
+# --------------------------------------------------------------------------- small shared helpers
+def atomic_write_text(path: PathLike, text: str) -> None:
+    """Write via a temp file in the same folder + os.replace, so readers never see half a file."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix="." + path.name + ".", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w", newline="") as f:
+            f.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise
+
+
+def short_hash(obj) -> str:
+    """8 hex chars of sha256 over canonical JSON: the key that makes a folder name a config identity."""
+    blob = json.dumps(obj, sort_keys=True, separators=(",", ":"), default=list)
+    return hashlib.sha256(blob.encode()).hexdigest()[:8]
+
+
+def is_done(run_dir: PathLike) -> bool:
+    return (Path(run_dir) / "done.json").is_file()
+
+
+# --------------------------------------------------------------------------- chains
+def make_stages(base: RunConfig, order: Sequence[str], steps: Sequence[int],
+                her_k: int = HER_K_MULTITASK, adaptation_ratio=None) -> List[RunConfig]:
+    """One RunConfig per stage: ``base`` with the stage's task and budget, HER k for multi-task.
+
+    ``adaptation_ratio`` (dual buffer's R/E sampling ratio) applies to the last stage
+    only, so the ratio study compares adaptations of one shared prior.
+    """
+    if len(order) != len(steps) or not order:
+        raise ConfigError(f"a chain needs one step budget per task, got {len(order)} tasks and {len(steps)} budgets")
+    stages = []
+    for i, (env_id, n) in enumerate(zip(order, steps)):
+        cfg = copy.deepcopy(base)
+        cfg.env_id = env_id
+        cfg.total_steps = int(n)
+        cfg.replay.her_k = her_k
+        if adaptation_ratio is not None and i == len(order) - 1:
+            cfg.replay.ratio = tuple(float(x) for x in adaptation_ratio)
+        stages.append(cfg)
+    return stages
+
+
+def validate_chain(stages: Sequence[RunConfig]) -> None:
+    if not stages:
+        raise ConfigError("a transfer chain needs at least one stage")
+    methods = {s.method for s in stages}
+    if len(methods) != 1:
+        raise ConfigError(f"all stages of a chain must use one method, got {sorted(methods)}")
+    for s in stages:
+        s.validate()
+
+
+def stage_dirname(stages: Sequence[RunConfig], i: int, carry_replay: bool) -> str:
+    """Readable name + hash of the chain prefix 0..i (a stage's identity includes where it started)."""
+    cfg = stages[i]
+    key = {"stages": [s.to_dict() for s in stages[: i + 1]], "carry_replay": bool(carry_replay)}
+    tag = f"-r{format_ratio(cfg.replay.ratio).replace('/', '-')}" if cfg.method == "dual_buffer" else ""
+    return f"stage{i}-{cfg.env_id}{tag}-{short_hash(key)}"
+
+
+def stage_lineage(stages: Sequence[RunConfig], i: int, carry_replay: bool) -> dict:
+    """What the report needs to place a stage: index, chain, parent folder (relative), carry flag."""
+    return {
+        "protocol": "transfer",
+        "stage": i,
+        "n_stages": len(stages),
+        "adaptation": i == len(stages) - 1,
+        "chain": [s.env_id for s in stages],
+        "parent": stage_dirname(stages, i - 1, carry_replay) if i > 0 else None,
+        "carry_replay": bool(carry_replay),
+    }
+
+
+def run_stage(stages: Sequence[RunConfig], i: int, chain_dir: PathLike, carry_replay: bool = True,
+              show_progress: bool = True) -> dict:
+    """Train stage i of a chain in its folder under ``chain_dir`` (stage i-1 must be finished)."""
+    from maniskill_dualher.train import run_training  # heavy import: only where a run happens
+
+    chain_dir = Path(chain_dir)
+    out = chain_dir / stage_dirname(stages, i, carry_replay)
+    init_from = None
+    if i > 0:
+        init_from = chain_dir / stage_dirname(stages, i - 1, carry_replay)
+        if not is_done(init_from):
+            raise ConfigError(f"stage {i} needs finished stage {i - 1} at {init_from}")
+    lineage = out / LINEAGE_FILE
+    if not lineage.is_file():
+        atomic_write_text(lineage, json.dumps(stage_lineage(stages, i, carry_replay), indent=2, sort_keys=True))
+    return run_training(stages[i], out, init_from=init_from, carry_replay=bool(carry_replay and i > 0),
+                        show_progress=show_progress)
+
+
+def run_transfer(stages: List[RunConfig], out_dir: PathLike, carry_replay: bool = True,
+                 show_progress: bool = True) -> List[dict]:
+    """Run a whole chain in ``out_dir``; finished stages are skipped, an interrupted one resumes.
+
+    Returns each stage's final metrics row.
+    """
+    validate_chain(stages)
+    return [run_stage(stages, i, out_dir, carry_replay, show_progress) for i in range(len(stages))]
+
+
+def transfer_chain_dirs(out_dir: PathLike, stages: Sequence[RunConfig], carry_replay: bool = True) -> List[Path]:
+    """The stage folders ``run_transfer`` uses, in order."""
+    return [Path(out_dir) / stage_dirname(stages, i, carry_replay) for i in range(len(stages))]
+
+
+def read_lineage(run_dir: PathLike) -> Optional[dict]:
+    p = Path(run_dir) / LINEAGE_FILE
+    return json.loads(p.read_text()) if p.is_file() else None

@@ -1,0 +1,569 @@
+"""The paper's experiment grid: run folders keyed by config, resumable, on a local pool or Ray.
+
+    python -m maniskill_dualher.sweep                      # preset "quick": every table and plot, <= 90 min on 2 cores
+    python -m maniskill_dualher.sweep --preset smoke       # the whole pipeline in about a minute (CI)
+    python -m maniskill_dualher.sweep --dry-run            # list the runs, write nothing
+
+Each run's folder is ``<out>/runs/...-<hash of its config>``: finished runs are skipped,
+interrupted ones resume from their checkpoint, so killing the sweep at any moment and
+rerunning the same command ends with the same tables. When the grid is done the report
+(``maniskill_dualher.report``) rebuilds the tables, plots and summary.md in ``<out>``.
+"""
+from __future__ import annotations
+
+import argparse
+import copy
+import dataclasses
+import json
+import os
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Dict, List, Optional, Sequence, Tuple
+
+from maniskill_dualher import protocol
+from maniskill_dualher.config import ConfigError, ReplayConfig, RunConfig, SACConfig, format_ratio, parse_ratio
+
+METHODS = ("sac", "sac_her_per", "dual_buffer")
+TRANSFER_METHODS = ("sac_her_per", "dual_buffer")      # paper Fig. 5 / Table 5
+EXPERIMENTS = ("single", "transfer", "ratios")
+PAPER_RATIOS = ((0.5, 0.5), (0.6, 0.4), (0.7, 0.3))   # paper Table 4
+SWEEP_FILE = "sweep.json"
+RUNS_DIR = "runs"
+
+
+# =========================================================================== BUDGETS: one place per preset
+@dataclass
+class Budget:
+    """Every number a preset sets (steps are environment steps). Edit here to tune a preset."""
+    single_steps: Dict[str, int]        # single-task run, per task (paper Fig. 4)
+    stage_steps: Dict[str, int]         # a transfer *source* stage, per task
+    adaptation_steps: Dict[str, int]    # the chain's last (target) stage, per task (paper: 120 vs 200 epochs)
+    seeds: Tuple[int, ...]
+    eval_every: int                     # env steps between evaluations
+    eval_episodes: int
+    checkpoint_every: int               # env steps between checkpoints (resume granularity)
+    max_episode_steps: Optional[int]    # None: the task's default (150, paper Table 3)
+    hidden: Tuple[int, ...]             # SAC hidden layers (not in the paper)
+    batch_size: int
+    random_steps: int                   # uniform random actions first (paper: 100k), every stage
+    learning_starts: int
+    capacity: int                       # replay capacity (paper: 1e7)
+    updates_per_step: float = 1.0
+
+
+def _per_task(reach: int, box: int, microwave: int) -> Dict[str, int]:
+    return dict(zip(protocol.TASKS, (reach, box, microwave)))
+
+
+PAPER_EPOCH_STEPS = 200 * 150   # paper: an epoch is 200 episodes of 150 steps (Table 3)
+
+PRESETS: Dict[str, Budget] = {
+    # CI: the whole pipeline (every experiment, table and plot) in about a minute. Learns nothing.
+    "smoke": Budget(
+        single_steps=_per_task(300, 300, 300), stage_steps=_per_task(200, 200, 200),
+        adaptation_steps=_per_task(200, 200, 200), seeds=(0, 1),
+        eval_every=100, eval_episodes=2, checkpoint_every=100, max_episode_steps=50,
+        hidden=(32, 32), batch_size=32, random_steps=100, learning_starts=100, capacity=10_000),
+    # Default: the whole grid, every table and plot, on a 2-core CPU in <= 90 minutes.
+    "quick": Budget(
+        single_steps=_per_task(20_000, 20_000, 20_000), stage_steps=_per_task(15_000, 15_000, 15_000),
+        adaptation_steps=_per_task(12_000, 12_000, 12_000), seeds=(0, 1, 2),
+        eval_every=2_000, eval_episodes=10, checkpoint_every=2_000, max_episode_steps=100,
+        hidden=(128, 128), batch_size=128, random_steps=2_000, learning_starts=1_000, capacity=1_000_000),
+    # The paper's budgets (section 4.2, Table 3): ReachTarget 500 epochs, CloseBox/CloseMicrowave 200,
+    # adaptation 120; epoch = 200 episodes x 150 steps. For GPU simulation or a cluster (--backend ray).
+    "paper": Budget(
+        single_steps=_per_task(500 * PAPER_EPOCH_STEPS, 200 * PAPER_EPOCH_STEPS, 200 * PAPER_EPOCH_STEPS),
+        stage_steps=_per_task(500 * PAPER_EPOCH_STEPS, 200 * PAPER_EPOCH_STEPS, 200 * PAPER_EPOCH_STEPS),
+        adaptation_steps=_per_task(*(120 * PAPER_EPOCH_STEPS,) * 3), seeds=(0, 1, 2),
+        eval_every=PAPER_EPOCH_STEPS, eval_episodes=10, checkpoint_every=10 * PAPER_EPOCH_STEPS,
+        max_episode_steps=150, hidden=(256, 256), batch_size=256, random_steps=100_000,
+        learning_starts=100_000, capacity=10_000_000),
+}
+# ===========================================================================
+
+
+@dataclass
+class Node:
+    """One run of the grid: a single-task run or one stage of a transfer chain."""
+    rel: str                                   # folder relative to <out>
+    cfg: RunConfig
+    label: str
+    parent: Optional[str] = None               # rel of the stage this one starts from
+    stages: Optional[List[RunConfig]] = None   # the chain (stage nodes only)
+    stage: Optional[int] = None
+    carry_replay: bool = False
+    descendants: int = 0                       # scheduling priority: long chains first
+
+    def payload(self, out: Path) -> dict:
+        """A plain dict a worker (process or Ray) can run without the grid."""
+        p = {"rel": self.rel, "out": str(out / self.rel), "cfg": self.cfg.to_dict()}
+        if self.stages is not None:
+            p.update(stages=[s.to_dict() for s in self.stages], stage=self.stage,
+                     chain_dir=str((out / self.rel).parent), carry_replay=self.carry_replay)
+        return p
+
+
+# --------------------------------------------------------------------------- grid
+def base_config(b: Budget, method: str, seed: int) -> RunConfig:
+    return RunConfig(
+        method=method, seed=seed, max_episode_steps=b.max_episode_steps, eval_every=b.eval_every,
+        eval_episodes=b.eval_episodes, checkpoint_every=b.checkpoint_every, torch_threads=1,
+        sac=SACConfig(hidden=tuple(b.hidden), batch_size=b.batch_size, random_steps=b.random_steps,
+                      learning_starts=b.learning_starts, updates_per_step=b.updates_per_step),
+        replay=ReplayConfig(capacity=b.capacity, her_k=protocol.HER_K_SINGLE))
+
+
+def build_grid(d: dict) -> List[Node]:
+    """Every run of a sweep definition, deduplicated by folder (the ratio study reuses transfer's chain)."""
+    b = Budget(**d["budget"])
+    nodes: Dict[str, Node] = {}
+
+    def add(n: Node) -> None:
+        nodes.setdefault(n.rel, n)
+
+    if "single" in d["experiments"]:
+        for task in d["tasks"]:
+            for method in d["methods"]:
+                for seed in d["seeds"]:
+                    cfg = base_config(b, method, seed)
+                    cfg.env_id, cfg.total_steps = task, b.single_steps[task]
+                    cfg.validate()
+                    rel = f"{RUNS_DIR}/single/{task}-{method}-s{seed}-{protocol.short_hash(cfg.to_dict())}"
+                    add(Node(rel, cfg, f"single {task} {method} seed {seed}"))
+
+    order = d["task_order"]
+    steps = [b.stage_steps[t] for t in order[:-1]] + [b.adaptation_steps[order[-1]]]
+    chains = []
+    if "transfer" in d["experiments"]:
+        chains += [(m, None) for m in d["methods"] if m in TRANSFER_METHODS]
+    if "ratios" in d["experiments"] and "dual_buffer" in d["methods"]:
+        chains += [("dual_buffer", tuple(r)) for r in d["ratios"]]
+    for method, ratio in chains:
+        for seed in d["seeds"]:
+            stages = protocol.make_stages(base_config(b, method, seed), order, steps, adaptation_ratio=ratio)
+            protocol.validate_chain(stages)
+            chain_rel = f"{RUNS_DIR}/transfer/{method}-s{seed}"
+            parent = None
+            for i, cfg in enumerate(stages):
+                rel = f"{chain_rel}/{protocol.stage_dirname(stages, i, d['carry_replay'])}"
+                tag = f" ratio {format_ratio(cfg.replay.ratio)}" if method == "dual_buffer" else ""
+                add(Node(rel, cfg, f"transfer {method}{tag} seed {seed} stage {i} {cfg.env_id}", parent=parent,
+                         stages=stages, stage=i, carry_replay=d["carry_replay"]))
+                parent = rel
+    for n in nodes.values():  # priority = how many runs wait on this one
+        p = n.parent
+        while p is not None:
+            nodes[p].descendants += 1
+            p = nodes[p].parent
+    return list(nodes.values())
+
+
+# --------------------------------------------------------------------------- CLI parsing
+class _Parser(argparse.ArgumentParser):
+    """argparse that answers bad input with one line on stderr and exit code 2."""
+
+    def error(self, message):  # noqa: D401
+        self.exit(2, f"error: {message} (see --help)\n")
+
+
+def _split(text: str) -> List[str]:
+    return [t.strip() for t in text.split(",") if t.strip()]
+
+
+def parse_seeds(text: str) -> Tuple[int, ...]:
+    """'3' -> (0, 1, 2) (a count); '0,4,7' or '7,' -> those seeds."""
+    try:
+        if "," not in text:
+            n = int(text)
+            if n < 0:
+                raise ConfigError(f"seed must be >= 0, got {n}")
+            if n == 0:
+                raise ConfigError("--seeds count must be >= 1, got 0")
+            return tuple(range(n))
+        seeds = tuple(int(s) for s in _split(text))
+    except ValueError:
+        raise ConfigError(f"--seeds must be a count (3) or a list (0,1,2), got {text!r}") from None
+    bad = [s for s in seeds if s < 0]
+    if bad:
+        raise ConfigError(f"seed must be >= 0, got {bad[0]}")
+    if not seeds or len(set(seeds)) != len(seeds):
+        raise ConfigError(f"--seeds must list distinct seeds, got {text!r}")
+    return seeds
+
+
+def _pick(text: str, allowed: Sequence[str], what: str) -> List[str]:
+    items = _split(text)
+    for x in items:
+        if x not in allowed:
+            raise ConfigError(f"unknown {what} {x!r} (choose from {', '.join(allowed)})")
+    if not items:
+        raise ConfigError(f"no {what} given")
+    return items
+
+
+def _apply_budget_override(b: Budget, item: str) -> None:
+    """KEY=VALUE on a Budget field; dict fields take KEY.TASK=VALUE (e.g. single_steps.CloseBox-v1=5000)."""
+    if "=" not in item:
+        raise ConfigError(f"--budget wants KEY=VALUE, got {item!r}")
+    key, val = (s.strip() for s in item.split("=", 1))
+    name, _, sub = key.partition(".")
+    fields = {f.name: f for f in dataclasses.fields(Budget)}
+    if name not in fields or name == "seeds":
+        choices = ", ".join(f for f in fields if f != "seeds")
+        raise ConfigError(f"unknown budget key {name!r} (choose from {choices}; seeds via --seeds)")
+    cur = getattr(b, name)
+    try:
+        if isinstance(cur, dict):
+            if sub not in cur:
+                raise ConfigError(f"--budget {name} needs a task, e.g. {name}.{protocol.TASKS[0]}={val}")
+            cur[sub] = int(val)
+        elif name == "hidden":
+            setattr(b, name, tuple(int(x) for x in _split(val)))
+        elif name == "max_episode_steps":
+            setattr(b, name, None if val.lower() == "none" else int(val))
+        elif name == "updates_per_step":
+            setattr(b, name, float(val))
+        else:
+            setattr(b, name, int(float(val)))
+    except ValueError:
+        raise ConfigError(f"bad value for budget {key!r}: {val!r}") from None
+
+
+def _check_budget(b: Budget) -> None:
+    for name in ("eval_every", "eval_episodes", "checkpoint_every", "batch_size", "capacity"):
+        if getattr(b, name) <= 0:
+            raise ConfigError(f"budget {name} must be > 0, got {getattr(b, name)}")
+    for name in ("single_steps", "stage_steps", "adaptation_steps"):
+        for t, v in getattr(b, name).items():
+            if v <= 0:
+                raise ConfigError(f"budget {name}.{t} must be > 0, got {v}")
+    if not b.hidden or min(b.hidden) <= 0:
+        raise ConfigError(f"budget hidden must be positive layer sizes, got {b.hidden}")
+    if b.max_episode_steps is not None and b.max_episode_steps <= 0:
+        raise ConfigError(f"budget max_episode_steps must be > 0, got {b.max_episode_steps}")
+    if min(b.random_steps, b.learning_starts) < 0 or b.updates_per_step <= 0:
+        raise ConfigError("budget random_steps/learning_starts must be >= 0 and updates_per_step > 0")
+
+
+def definition_from_args(a: argparse.Namespace) -> dict:
+    """The sweep's definition (what sweep.json holds): everything that decides which runs exist."""
+    b = copy.deepcopy(PRESETS[a.preset])
+    if a.steps is not None:
+        for t in protocol.TASKS:
+            b.single_steps[t] = b.stage_steps[t] = a.steps
+            b.adaptation_steps[t] = max(1, round(a.steps * 120 / 200))  # paper: adaptation 120 vs 200 epochs
+    if a.adapt_steps is not None:
+        b.adaptation_steps = {t: a.adapt_steps for t in protocol.TASKS}
+    for item in a.budget or []:
+        _apply_budget_override(b, item)
+    if a.seeds is not None:
+        b.seeds = parse_seeds(a.seeds)
+    _check_budget(b)
+    order = _pick(a.task_order, protocol.TASKS, "task")
+    if len(set(order)) != len(order):
+        raise ConfigError(f"--task-order repeats a task: {a.task_order!r}")
+    ratios = [parse_ratio(r) for r in _split(a.ratios)] if a.ratios else [tuple(r) for r in PAPER_RATIOS]
+    if not ratios:
+        raise ConfigError("no ratio given")
+    d = {
+        "version": 1,
+        "preset": a.preset,
+        "experiments": _pick(a.experiments, EXPERIMENTS, "experiment"),
+        "tasks": _pick(a.tasks, protocol.TASKS, "task") if a.tasks else list(protocol.TASKS),
+        "methods": _pick(a.methods, METHODS, "method") if a.methods else list(METHODS),
+        "seeds": list(b.seeds),
+        "ratios": [list(r) for r in ratios],
+        "task_order": order,
+        "carry_replay": not a.no_carry_replay,
+        "budget": {**dataclasses.asdict(b), "seeds": list(b.seeds), "hidden": list(b.hidden)},
+    }
+    if "ratios" in d["experiments"] and "dual_buffer" not in d["methods"]:
+        raise ConfigError("experiment 'ratios' needs method dual_buffer (it varies the dual buffer's ratio)")
+    if "transfer" in d["experiments"] and not set(d["methods"]) & set(TRANSFER_METHODS):
+        raise ConfigError(f"experiment 'transfer' needs method {' or '.join(TRANSFER_METHODS)}")
+    return d
+
+
+def check_out_folder(out: Path, d: dict, force: bool) -> None:
+    """Refuse an out folder that holds another sweep (or foreign runs) unless --force."""
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"--out {out} exists and is not a folder")
+    f = out / SWEEP_FILE
+    if f.is_file():
+        try:
+            old = json.loads(f.read_text())
+        except (OSError, ValueError):
+            old = {}
+        if old != d and not force:
+            diff = sorted(k for k in set(old) | set(d) if old.get(k) != d.get(k))
+            raise ConfigError(f"{out} holds a different sweep (differs in: {', '.join(diff)}); "
+                              f"use another --out, or --force to make this one current")
+        return
+    ours = set(d["runs"])
+    foreign = [str(p.parent.relative_to(out)) for p in sorted((out / RUNS_DIR).rglob("config.json"))
+               if str(p.parent.relative_to(out)) not in ours] if (out / RUNS_DIR).is_dir() else []
+    if foreign and not force:
+        raise ConfigError(f"{out} holds {len(foreign)} runs of a different config (e.g. {foreign[0]}); "
+                          f"use another --out, or --force")
+
+
+def make_parser() -> argparse.ArgumentParser:
+    budgets = "\n".join(
+        f"  {name:6s} seeds {list(b.seeds)}; steps single {sorted(set(b.single_steps.values()))}, "
+        f"source stage {sorted(set(b.stage_steps.values()))}, adaptation {sorted(set(b.adaptation_steps.values()))}; "
+        f"eval every {b.eval_every} x {b.eval_episodes} episodes; hidden {list(b.hidden)}"
+        for name, b in PRESETS.items())
+    p = _Parser(
+        prog="python -m maniskill_dualher.sweep",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description=(
+            "Run the paper's experiments (Beyene & Han 2022) and build its tables and plots.\n\n"
+            "experiments:\n"
+            "  single    each task x methods sac, sac_her_per, dual_buffer (paper Fig. 4)\n"
+            "  transfer  ReachTarget -> CloseBox -> CloseMicrowave for sac_her_per and dual_buffer; each stage\n"
+            "            starts from the previous stage's networks and replay; HER k=8 (paper Fig. 5, Table 5)\n"
+            "  ratios    dual_buffer transfer with R/E sampling ratios 0.5/0.5, 0.6/0.4, 0.7/0.3 in the adaptation\n"
+            "            stage (paper Table 4); shares the source stages, and the 0.6/0.4 chain, with 'transfer'\n\n"
+            "Runs are folders <out>/runs/...-<config hash>: finished ones are skipped, interrupted ones resume\n"
+            "from their checkpoint, so rerunning a killed sweep finishes it with the same results. The sweep's\n"
+            "definition is kept in <out>/sweep.json; an <out> holding a different sweep is refused (exit 2)\n"
+            "unless --force, which makes the new definition current (old run folders stay, the report ignores them).\n"
+            "When the grid is done, the report writes the tables (CSV), plots (PNG) and summary.md into <out>."),
+        epilog=("presets (budgets live in PRESETS in maniskill_dualher/sweep.py):\n" + budgets + "\n\n"
+                "examples:\n"
+                "  python -m maniskill_dualher.sweep --preset smoke --out /tmp/smoke\n"
+                "  python -m maniskill_dualher.sweep --experiments single --tasks CloseBox-v1 --seeds 5\n"
+                "  python -m maniskill_dualher.sweep --preset paper --backend ray --ray-address auto --workers 64\n"
+                "  python -m maniskill_dualher.report results/quick      # rebuild tables/plots only"),
+    )
+    p.add_argument("--preset", choices=sorted(PRESETS), default="quick", help="budget preset (default: quick)")
+    p.add_argument("--experiments", default=",".join(EXPERIMENTS),
+                   help="comma list of single, transfer, ratios (default: all)")
+    p.add_argument("--tasks", help=f"tasks of the single-task experiment (default: all: {','.join(protocol.TASKS)})")
+    p.add_argument("--methods", help=f"comma list of {', '.join(METHODS)} (default: all; transfer uses "
+                                      f"{' and '.join(TRANSFER_METHODS)} among them)")
+    p.add_argument("--seeds", help="a count (3 -> seeds 0,1,2) or a list (0,4,7; one seed: '7,'); default: the preset's")
+    p.add_argument("--ratios", help="dual buffer P(R)/P(E) ratios of the ratios experiment, e.g. 0.5/0.5,0.7/0.3 "
+                                    "(default: the paper's 0.5/0.5,0.6/0.4,0.7/0.3)")
+    p.add_argument("--task-order", default=",".join(protocol.TRANSFER_ORDER),
+                   help="the transfer chain; the last task is the adaptation target (default: %(default)s)")
+    p.add_argument("--steps", type=int, help="env steps of every single-task run and source stage "
+                                             "(adaptation stage: 120/200 of it, as in the paper)")
+    p.add_argument("--adapt-steps", type=int, help="env steps of the adaptation (last) stage")
+    p.add_argument("--budget", action="append", metavar="KEY=VALUE",
+                   help="override one preset budget, e.g. eval_every=500, hidden=64,64, "
+                        "single_steps.CloseBox-v1=5000 (repeatable)")
+    p.add_argument("--no-carry-replay", action="store_true",
+                   help="transfer networks only; each stage starts with empty replay buffers")
+    p.add_argument("--out", help="output folder (default: results/<preset>)")
+    p.add_argument("--workers", type=int, help="runs in parallel (default: min(2, CPU count); with --ray-address: "
+                                               "the cluster's CPUs)")
+    p.add_argument("--backend", choices=("local", "ray"), default="local",
+                   help="local process pool, or Ray (same results either way)")
+    p.add_argument("--ray-address", help="join this Ray cluster (e.g. auto, ray://host:10001); "
+                                         "without it --backend ray starts a local Ray instance. "
+                                         "The cluster must see --out on a shared filesystem")
+    p.add_argument("--force", action="store_true", help="use an --out that holds a different sweep")
+    p.add_argument("--dry-run", action="store_true", help="print the runs and exit; write nothing")
+    p.add_argument("--no-report", action="store_true", help="skip building the report at the end")
+    return p
+
+
+# --------------------------------------------------------------------------- execution
+def _worker_init(parent_pid: int) -> None:
+    """Pool worker start: one torch thread (deterministic, polite); die with the sweep process."""
+    try:
+        import ctypes
+        import signal
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, int(signal.SIGKILL))  # PR_SET_PDEATHSIG
+    except Exception:  # not Linux: orphans finish their run, resume stays correct
+        pass
+    if os.getppid() != parent_pid:
+        os._exit(1)
+    import torch
+    torch.set_num_threads(1)
+
+
+def execute(payload: dict) -> dict:
+    """Run one grid node (in a worker) and return its final metrics row."""
+    import torch
+    torch.set_num_threads(1)
+    cfg = RunConfig.from_dict(payload["cfg"])
+    if "stages" in payload:
+        stages = [RunConfig.from_dict(s) for s in payload["stages"]]
+        row = protocol.run_stage(stages, payload["stage"], payload["chain_dir"], payload["carry_replay"],
+                                 show_progress=False)
+    else:
+        from maniskill_dualher.train import run_training
+        row = run_training(cfg, payload["out"], show_progress=False)
+    return {"rel": payload["rel"], "row": dict(row)}
+
+
+class LocalBackend:
+    """A spawn-context process pool (fork is unsafe beside torch/SAPIEN threads)."""
+
+    def __init__(self, workers: int):
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+        os.environ.setdefault("OMP_NUM_THREADS", "1")
+        os.environ.setdefault("MKL_NUM_THREADS", "1")
+        self.pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
+                                        initializer=_worker_init, initargs=(os.getpid(),))
+        self.capacity = workers
+
+    def submit(self, payload):
+        return self.pool.submit(execute, payload)
+
+    def wait(self, handles):
+        from concurrent.futures import FIRST_COMPLETED, wait
+        return list(wait(handles, return_when=FIRST_COMPLETED).done)
+
+    @staticmethod
+    def result(h):
+        return h.result()
+
+    def close(self, cancel: bool = False):
+        self.pool.shutdown(wait=not cancel, cancel_futures=cancel)
+
+
+class RayBackend:
+    """Ray tasks (one CPU each); without an address a local instance is started and stopped."""
+
+    def __init__(self, workers: Optional[int], address: Optional[str]):
+        import ray
+        self.ray = ray
+        env = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+        repo = str(Path(__file__).resolve().parents[1])
+        env["PYTHONPATH"] = os.pathsep.join(filter(None, [repo, os.environ.get("PYTHONPATH")]))
+        kw = dict(runtime_env={"env_vars": env}, log_to_driver=False, logging_level="ERROR")
+        if address:
+            ray.init(address=address, **kw)
+        else:
+            ray.init(num_cpus=workers, include_dashboard=False, **kw)
+        self.capacity = workers or max(1, int(ray.cluster_resources().get("CPU", 1)))
+        self.fn = ray.remote(num_cpus=1, max_retries=0)(execute)
+
+    def submit(self, payload):
+        return self.fn.remote(payload)
+
+    def wait(self, handles):
+        ready, _ = self.ray.wait(list(handles), num_returns=1)
+        return ready
+
+    def result(self, h):
+        try:
+            return self.ray.get(h)
+        except self.ray.exceptions.RayTaskError as e:  # surface the run's own exception
+            raise e.as_instanceof_cause() from None
+
+    def close(self, cancel: bool = False):
+        self.ray.shutdown()
+
+
+def headline(row: dict) -> str:
+    def num(k, fmt):
+        try:
+            return format(float(row[k]), fmt)
+        except (KeyError, TypeError, ValueError):
+            return "?"
+    return (f"final eval success {num('eval_success_rate', '.2f')}, "
+            f"successful training episodes {num('train_successes', '.0f')}")
+
+
+def run_grid(nodes: List[Node], out: Path, backend, progress: bool = True) -> List[str]:
+    """Run every unfinished node, parents before children, long chains first; return failures."""
+    from tqdm import tqdm
+
+    by_rel = {n.rel: n for n in nodes}
+    done = {n.rel for n in nodes if protocol.is_done(out / n.rel)}
+    todo = [n for n in nodes if n.rel not in done]
+    failed: List[str] = []
+    in_flight: Dict[object, Node] = {}
+    bar = tqdm(total=len(nodes), initial=len(done), desc="sweep", unit="run", disable=not progress,
+               dynamic_ncols=True)
+    if done:
+        bar.write(f"{len(done)} of {len(nodes)} runs already finished: skipped")
+    try:
+        while todo or in_flight:
+            ready = [n for n in todo if n.parent is None or n.parent in done]
+            ready.sort(key=lambda n: -n.descendants)  # stable: grid order among equals
+            for n in ready[: max(0, backend.capacity - len(in_flight))]:
+                in_flight[backend.submit(n.payload(out))] = n
+                todo.remove(n)
+            if not in_flight:
+                break  # the rest waits on failed runs
+            for h in backend.wait(list(in_flight)):
+                n = in_flight.pop(h)
+                try:
+                    res = backend.result(h)
+                except Exception as e:  # one failed run must not stop the others
+                    failed.append(n.rel)
+                    msg = str(e).strip().splitlines()[-1] if str(e).strip() else type(e).__name__
+                    bar.write(f"FAILED {n.label} ({n.rel}): {type(e).__name__}: {msg}")
+                    continue
+                done.add(n.rel)
+                bar.update(1)
+                bar.write(f"done {n.label}: {headline(res['row'])}")
+        blocked = [n.rel for n in todo]
+        if blocked:
+            bar.write(f"{len(blocked)} runs not started: they start from a failed run")
+    finally:
+        bar.close()
+    return failed + blocked
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    parser = make_parser()
+    a = parser.parse_args(argv)
+    try:  # validate everything before writing anything
+        d = definition_from_args(a)
+        nodes = build_grid(d)
+        d["runs"] = sorted(n.rel for n in nodes)
+        out = Path(a.out if a.out else Path("results") / a.preset)
+        if a.workers is not None and a.workers < 1:
+            raise ConfigError(f"--workers must be >= 1, got {a.workers}")
+        if a.ray_address and a.backend != "ray":
+            raise ConfigError("--ray-address needs --backend ray")
+        if a.backend == "ray":
+            try:
+                import ray  # noqa: F401
+            except ImportError:
+                raise ConfigError("--backend ray needs Ray: pip install 'ray[default]'") from None
+        check_out_folder(out, d, a.force)
+    except ConfigError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    if a.dry_run:
+        for n in nodes:
+            state = "done" if protocol.is_done(out / n.rel) else "todo"
+            print(f"{state}  {n.rel}")
+        print(f"{len(nodes)} runs; nothing written (--dry-run)")
+        return 0
+
+    workers = a.workers or (None if a.ray_address else min(2, os.cpu_count() or 1))
+    protocol.atomic_write_text(out / SWEEP_FILE, json.dumps(d, indent=2, sort_keys=True) + "\n")
+    print(f"sweep {a.preset}: {len(nodes)} runs in {out} on {a.backend} backend", flush=True)
+    backend = LocalBackend(workers) if a.backend == "local" else RayBackend(workers, a.ray_address)
+    cancel = True
+    try:
+        failed = run_grid(nodes, out, backend)
+        cancel = False
+    except KeyboardInterrupt:
+        print("interrupted: rerun the same command to resume", file=sys.stderr)
+        return 130
+    finally:
+        backend.close(cancel=cancel)
+    if not a.no_report:
+        from maniskill_dualher.report import build_report
+        written = build_report(out)
+        print(f"report: {len(written)} files in {out} (summary: {out / 'summary.md'})")
+    if failed:
+        print(f"error: {len(failed)} runs did not finish (first: {failed[0]}); rerun to retry", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
