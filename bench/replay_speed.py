@@ -25,40 +25,51 @@ def fill_rows(n, rng):
             "next_obs": rng.random((n, D), dtype=np.float32), "done": np.zeros(n, np.float32)}
 
 
-def timeit(step, iters, warmup=50):
-    for _ in range(warmup):
-        step()
-    ts = np.empty(iters)
-    for i in range(iters):
-        t0 = time.perf_counter()
-        step()
-        ts[i] = time.perf_counter() - t0
-    return 1e6 * np.median(ts), 1e6 * ts.mean()
+def run_interleaved(steps, iters, rounds=20, warmup=50):
+    """Alternate the contenders in rounds so they share the (busy, shared) machine's conditions."""
+    for step in steps.values():
+        for _ in range(warmup):
+            step()
+    times = {k: [] for k in steps}
+    per = max(1, iters // rounds)
+    for _ in range(rounds):
+        for k, step in steps.items():
+            for _ in range(per):
+                t0 = time.perf_counter()
+                step()
+                times[k].append(time.perf_counter() - t0)
+    return {k: (1e6 * np.median(v), 1e6 * np.mean(v)) for k, v in times.items()}
 
 
-def bench_ours(rows, size, iters, is_weights, to_torch):
+def ours_steps(rows, size):
     from maniskill_dualher.config import ReplayConfig
     from maniskill_dualher.replay.buffer import make_buffer
 
-    cfg = ReplayConfig(is_weights=is_weights)
-    buf = make_buffer(size, D, A, prioritized=True, replay_cfg=cfg)
+    buf = make_buffer(size, D, A, prioritized=True, replay_cfg=ReplayConfig())
     buf.add(rows)
     rng = np.random.default_rng(0)
     td_rng = np.random.default_rng(1)
     buf.update_priorities(np.arange(size), td_rng.random(size))
+    s = buf.sampler
 
-    if to_torch:
-        def step():
-            b = buf.sample(B, rng)
-            buf.update_priorities(b, td_rng.random(B))
-    else:
-        def step():
-            _, idx, _ = buf.sample_arrays(B, rng)
-            buf.update_priorities(idx, td_rng.random(B))
-    return timeit(step, iters)
+    def arrays():
+        s.is_weights = False
+        _, idx, _ = buf.sample_arrays(B, rng)
+        buf.update_priorities(idx, td_rng.random(B))
+
+    def batch():
+        s.is_weights = False
+        b = buf.sample(B, rng)
+        buf.update_priorities(b, td_rng.random(B))
+
+    def batch_w():
+        s.is_weights = True
+        b = buf.sample(B, rng)
+        buf.update_priorities(b, td_rng.random(B))
+    return {"ours (numpy arrays)": arrays, "ours (torch Batch)": batch, "ours (torch Batch + IS weights)": batch_w}
 
 
-def bench_cpprb(rows, size, iters):
+def cpprb_step(rows, size):
     import cpprb
 
     env_dict = {"obs": {"shape": D}, "act": {"shape": A}, "rew": {}, "next_obs": {"shape": D}, "done": {}}
@@ -67,17 +78,17 @@ def bench_cpprb(rows, size, iters):
     td_rng = np.random.default_rng(1)
     rb.update_priorities(np.arange(size), td_rng.random(size) + 1e-6)
 
-    def step():
+    def step():  # cpprb always computes IS weights
         s = rb.sample(B, beta=0.4)
         rb.update_priorities(s["indexes"], td_rng.random(B) + 1e-6)
-    return timeit(step, iters)
+    return step
 
 
-def bench_torchrl(size, iters):
-    from torchrl.data import PrioritizedSampler  # noqa: F401  (raises here: SumSegmentTreeFp32 missing)
+def torchrl_step(size):
+    from torchrl.data import PrioritizedSampler  # raises here: SumSegmentTreeFp32 is not available
     import torch
-    from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
     from tensordict import TensorDict
+    from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
 
     rb = TensorDictReplayBuffer(storage=LazyTensorStorage(size),
                                 sampler=PrioritizedSampler(size, alpha=0.5, beta=0.4), batch_size=B)
@@ -88,7 +99,7 @@ def bench_torchrl(size, iters):
         s = rb.sample()
         s.set("td_error", torch.rand(B))
         rb.update_tensordict_priority(s)
-    return timeit(step, iters)
+    return step
 
 
 def main():
@@ -98,19 +109,19 @@ def main():
     a = p.parse_args()
     rows = fill_rows(a.size, np.random.default_rng(0))
     print(f"full buffer of {a.size:,} transitions (obs {D}, action {A}), batch {B}; sample + priority update, "
-          f"median (mean) us per op over {a.iters} ops")
-    results = {}
+          f"median (mean) us per op, ~{a.iters} ops each, interleaved")
+    steps = {}
     try:
-        results["cpprb"] = bench_cpprb(rows, a.size, a.iters)
+        steps["cpprb"] = cpprb_step(rows, a.size)
     except ImportError as e:
         print(f"cpprb                            unavailable ({e})")
-    for label, w, tt in (("ours (numpy arrays)", False, False), ("ours (torch Batch)", False, True),
-                         ("ours (torch Batch + IS weights)", True, True)):
-        results[label] = bench_ours(rows, a.size, a.iters, w, tt)
+    steps.update(ours_steps(rows, a.size))
     try:
-        results["torchrl PrioritizedSampler"] = bench_torchrl(a.size, a.iters)
-    except Exception as e:  # noqa: BLE001 - any failure to load/run means unavailable here
+        steps["torchrl PrioritizedSampler"] = torchrl_step(a.size)
+    except Exception as e:  # noqa: BLE001 - any failure to load/build means unavailable here
         print(f"torchrl PrioritizedSampler       unavailable ({type(e).__name__}: {str(e).splitlines()[0][:80]})")
+    del rows
+    results = run_interleaved(steps, a.iters)
     ref = results.get("cpprb")
     for label, (med, mean) in results.items():
         ratio = f"  {med / ref[0]:.2f}x cpprb" if ref else ""
