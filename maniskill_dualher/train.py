@@ -228,8 +228,10 @@ class Trainer:
                 break
 
     # ------------------------------------------------------------ main loop
-    def run(self) -> dict:
-        cfg, s = self.cfg, self.cfg.sac
+    def run(self, stop_at: Optional[int] = None) -> Optional[dict]:
+        """Train to ``cfg.total_steps``; with ``stop_at``, checkpoint and return None once that many
+        env steps are done (a time-sliced job; resuming continues the same experiment)."""
+        cfg = self.cfg
         done_path = self.out / "done.json"
         if done_path.is_file():
             return json.loads(done_path.read_text())["final"]
@@ -259,7 +261,7 @@ class Trainer:
                     row = {"env_steps": self.env_steps, **self.evaluate(), "train_episodes": self.episodes,
                            "train_successes": self.successes, "updates": self.updates,
                            "wall_time_s": round(self.wall_time, 2)}
-                    row.update({f"replay_{k}": v for k, v in self.method.stats().items()})
+                    row.update({(k if k.startswith("replay_") else f"replay_{k}"): v for k, v in self.method.stats().items()})
                     self.rows.append(row)
                     for k, v in row.items():
                         if k != "env_steps" and isinstance(v, (int, float)):
@@ -269,10 +271,13 @@ class Trainer:
                     atomic_write_text(self.out / "metrics.csv", rows_to_csv(self.rows))
                     bar.set_postfix(success=f"{row['eval_success_rate']:.2f}", ret=f"{row['eval_return']:.1f}")
                     next_eval = (self.env_steps // cfg.eval_every + 1) * cfg.eval_every
-                if self.env_steps >= next_ckpt or finished:
+                stopping = stop_at is not None and self.env_steps >= stop_at and not finished
+                if self.env_steps >= next_ckpt or finished or stopping:
                     self.wall_time = time.perf_counter() - t0
                     self.save_checkpoint()
                     next_ckpt = (self.env_steps // cfg.checkpoint_every + 1) * cfg.checkpoint_every
+                if stopping:
+                    return None
         finally:
             bar.close()
             tb.close()
@@ -323,14 +328,15 @@ def _solver_action(solver, env: BatchEnv) -> np.ndarray:
 
 
 def run_training(cfg: RunConfig, out_dir, init_from=None, carry_replay: bool = False,
-                 show_progress: bool = True) -> dict:
-    """Train (or resume, or return the result of) one run in ``out_dir``; returns the final metrics row."""
+                 show_progress: bool = True, stop_at: Optional[int] = None) -> Optional[dict]:
+    """Train (or resume, or return the result of) one run in ``out_dir``; returns the final metrics row
+    (None if ``stop_at`` paused it early)."""
     done = Path(out_dir) / "done.json"
     if done.is_file():
         return json.loads(done.read_text())["final"]
     trainer = Trainer(cfg, out_dir, init_from=init_from, carry_replay=carry_replay, show_progress=show_progress)
     try:
-        return trainer.run()
+        return trainer.run(stop_at=stop_at)
     finally:
         trainer.env.close()
 
