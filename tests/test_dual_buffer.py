@@ -89,7 +89,9 @@ def test_split_mode_proportions_and_priority_updates_touch_R_only():
     last = {int(i): td[r] for r, i in enumerate(b.handle.indices)}  # duplicates: last write wins
     assert np.allclose(leaves, [np.sqrt(last[int(i)] + 1e-6) for i in b.handle.indices])
     assert not np.array_equal(tree_before, m.main.sampler.tree.tree)
-    assert m.stats()["frac_rows_from_R"] == pytest.approx(0.6)
+    st = m.stats()
+    assert st["frac_rows_from_R"] == pytest.approx(0.6)
+    assert st["replay_size"] == len(m.main) and st["E_size"] == len(m.E) == 2
 
 
 def test_E_batches_leave_priorities_alone():
@@ -138,6 +140,7 @@ def test_sac_her_per_stores_real_plus_k_hindsight():
     m = _filled("sac_her_per", her_k=8)
     assert len(m.main) == 2 * 18 * 9
     assert m.sample().weights is None
+    assert set(m.stats()) == {"replay_size", "max_priority"}
 
 
 def test_registry_errors_are_one_line_config_errors():
@@ -147,3 +150,11 @@ def test_registry_errors_are_one_line_config_errors():
         with pytest.raises(ConfigError, match="needs a goal environment") as e:
             make_method(_cfg(name), spec(goal=False), np.random.default_rng(0))
         assert "\n" not in str(e.value)
+
+
+def test_reseed_switches_the_sampling_stream():
+    m = _filled(seed=0)
+    m.reseed(np.random.default_rng(123))
+    a = m.sample().obs
+    m.reseed(np.random.default_rng(123))
+    assert torch.equal(a, m.sample().obs)

@@ -75,11 +75,19 @@ class BufferMethod:
             buf.set_progress(fraction)
 
     def stats(self) -> Dict[str, float]:
-        out = {f"replay_size_{k}": float(len(b)) for k, b in self.buffers.items()}
+        """Buffer sizes (keys end in "size": the train loop checks them) and the PER max priority.
+
+        ``replay_size`` is the main buffer R for every method; other buffers are ``<name>_size``.
+        """
+        out = {("replay_size" if k == "R" else f"{k}_size"): float(len(b)) for k, b in self.buffers.items()}
         for k, b in self.buffers.items():
             if b.prioritized:
-                out[f"max_priority_{k}"] = float(b.sampler.max_priority)
+                out["max_priority" if k == "R" else f"{k}_max_priority"] = float(b.sampler.max_priority)
         return out
+
+    def reseed(self, rng: np.random.Generator) -> None:
+        """Use a new sampling stream (e.g. after loading another run's replay for transfer)."""
+        self.rng = rng
 
     def _extra_state(self) -> dict:
         return {}
