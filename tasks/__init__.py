@@ -3,4 +3,5 @@
 Each task module registers its env id with ManiSkill/gymnasium when imported; add new tasks here.
 """
 from tasks import reach_target  # noqa: F401  (ReachTarget-v1)
+from tasks import close_box  # noqa: F401  (CloseBox-v1)
 from tasks import close_microwave  # noqa: F401  (CloseMicrowave-v1)

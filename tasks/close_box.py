@@ -1,0 +1,191 @@
+"""CloseBox-v1: push shut the lid of an open box standing on the table in front of the Panda."""
+from __future__ import annotations
+
+import numpy as np
+import sapien
+import torch
+
+from mani_skill.utils.registration import register_env
+from mani_skill.utils.structs import Pose
+
+from tasks.common import DEFAULT_MAX_EPISODE_STEPS, PandaGoalEnv
+
+# x-axis -> -y: a joint frame with this rotation turns about the world -y axis (joint axis = frame
+# x-axis), so a positive hinge angle lifts the lid's free (+x) edge up.
+_Q_X_TO_MINUS_Y = [float(np.sqrt(0.5)), 0.0, 0.0, -float(np.sqrt(0.5))]
+
+
+@register_env("CloseBox-v1", max_episode_steps=DEFAULT_MAX_EPISODE_STEPS)
+class CloseBoxEnv(PandaGoalEnv):
+    """
+    **Task Description:**
+    Close the lid of a box standing on the table in front of the Panda. The box is an open-top shell
+    (bottom and four walls) built from primitive collision boxes, 0.14 m deep (x) x 0.20 m wide (y) x
+    0.09 m tall, fixed to the table. Its lid (0.14 x 0.20 m, 1 cm thick) turns on a horizontal revolute
+    hinge along the box's top edge nearer the robot (the -x edge in the box frame); the hinge angle is
+    0 when closed and grows as the free (far) edge rises and swings towards the robot (limits
+    [0, 1.9] rad). Opened, the lid stands on the robot's side of the box with its outer face towards
+    the robot, so the Panda closes it by pushing that face forward and down; the resting TCP (near
+    (0, 0, 0.17)) lies in front of the hinge, outside the lid's swing, at every initial angle and pose.
+
+    The lid is counterbalanced (its centre of mass sits 1.5 cm from the hinge axis, as with a
+    spring-balanced lid stay) and the hinge has friction 0.5 and damping 0.2 N m s/rad: it holds any
+    angle when nothing touches it (drift < 1e-5 rad over 100 idle steps in [0.1, 1.9] rad) and a push of
+    a few newtons closes it. (A uniform lid, centre of mass half-way out, needs PhysX joint friction
+    >= 3 to hold, and then a 20 N push at the free edge barely moves it; hence the counterweight.)
+
+    **Randomizations:**
+    - the box body's centre is placed uniformly in x in [0.13, 0.16], y in [-0.10, 0.10] (metres, world
+      frame; table top at z = 0, robot base at x = -0.615), on the table
+    - its yaw is uniform in [-0.1, 0.1] rad (0 = hinge edge facing the robot, i.e. facing -x)
+    - the lid's initial angle is uniform in [0.5, 1.3] rad open, at rest
+    - the robot's joints get the usual ManiSkill Gaussian noise (``robot_init_qpos_noise``, 0.02 rad)
+
+    **Success Conditions:**
+    - the lid angle is below 0.1 rad. Equivalently (and this is how it is evaluated): the achieved goal,
+      the midpoint of the lid's free edge on its inner (lower) face (3-D, world frame; at L = 0.14 m from
+      the hinge axis), lies within ``goal_tolerance = 2 L sin(0.05) ~= 0.0140 m`` of the desired goal,
+      the same point with the lid closed. The chord between the two positions of the point is
+      2 L sin(angle / 2), so "distance < tolerance" is exactly "angle < 0.1".
+
+    **Observation slots** (see ``tasks.common``): task object pose = the lid link's pose, task joint =
+    hinge angle and angular velocity, no distractors.
+
+    **Dense reward:** the common goal term ``1 - tanh(5 * goal_distance)`` plus a reaching term
+    ``0.5 * (1 - tanh(10 * ||tcp - push_point||))`` towards the push point, the middle of the lid's outer
+    face (``PUSH_RADIUS`` from the hinge); 2.0 on success.
+    """
+
+    # Box (shell) dimensions, metres.
+    BOX_DEPTH = 0.14  # x, away from the robot
+    BOX_WIDTH = 0.20  # y
+    BOX_HEIGHT = 0.09  # z
+    WALL = 0.008
+    BOX_LIFT = 0.001  # above the table
+    # Lid.
+    LID_THICKNESS = 0.01
+    LID_GAP = 0.002  # between the top of the walls and the closed lid's inner face
+    LID_LENGTH = BOX_DEPTH  # hinge axis to free edge
+    LID_DENSITY = 500.0
+    LID_COM_OFFSET = 0.015  # centre of mass from the hinge axis along the lid (counterbalanced)
+    HINGE_DAMPING = 0.2
+    HINGE_FRICTION = 0.5
+    HINGE_LIMITS = (0.0, 1.9)
+    PUSH_RADIUS = 0.08  # push point on the outer face, distance from the hinge axis
+
+    # Randomization ranges (documented in the class docstring; tests check them).
+    CENTER_X_RANGE = (0.13, 0.16)
+    CENTER_Y_RANGE = (-0.10, 0.10)
+    YAW_RANGE = (-0.1, 0.1)
+    INIT_ANGLE_RANGE = (0.5, 1.3)
+    SUCCESS_ANGLE = 0.1
+
+    goal_tolerance = float(2 * LID_LENGTH * np.sin(SUCCESS_ANGLE / 2))
+
+    def _load_scene(self, options: dict):
+        super()._load_scene(options)
+        hx, hy, h = self.BOX_DEPTH / 2, self.BOX_WIDTH / 2, self.BOX_HEIGHT
+        t = self.WALL
+        render = self.scene.can_render()
+        if render:
+            box_mat = sapien.render.RenderMaterial(base_color=[0.55, 0.38, 0.22, 1.0])
+            lid_mat = sapien.render.RenderMaterial(base_color=[0.70, 0.50, 0.30, 1.0])
+
+        builder = self.scene.create_articulation_builder()
+        body = builder.create_link_builder()
+        body.set_name("box")
+        walls = [  # (centre, half size) in the box frame (origin: bottom centre): bottom, -x, +x, -y, +y
+            ([0, 0, t / 2], [hx, hy, t / 2]),
+            ([-hx + t / 2, 0, h / 2], [t / 2, hy, h / 2]),
+            ([hx - t / 2, 0, h / 2], [t / 2, hy, h / 2]),
+            ([0, -hy + t / 2, h / 2], [hx - t, t / 2, h / 2]),
+            ([0, hy - t / 2, h / 2], [hx - t, t / 2, h / 2]),
+        ]
+        for centre, half in walls:
+            body.add_box_collision(sapien.Pose(centre), half)
+            if render:
+                body.add_box_visual(sapien.Pose(centre), half, material=box_mat)
+
+        lid = builder.create_link_builder(body)
+        lid.set_name("lid")
+        L, th = self.LID_LENGTH, self.LID_THICKNESS
+        # Lid frame: origin on the hinge axis at the lid's inner face; closed, the lid runs along +x with
+        # its inner face at z = 0 and its outer face at z = +thickness.
+        half = [L / 2, hy, th / 2]
+        lid.add_box_collision(sapien.Pose([L / 2, 0, th / 2]), half, density=self.LID_DENSITY)
+        if render:
+            lid.add_box_visual(sapien.Pose([L / 2, 0, th / 2]), half, material=lid_mat)
+        mass = self.LID_DENSITY * L * self.BOX_WIDTH * th
+        inertia = mass / 12 * np.array([self.BOX_WIDTH ** 2 + th ** 2, L ** 2 + th ** 2, L ** 2 + self.BOX_WIDTH ** 2])
+        lid.set_mass_and_inertia(mass, sapien.Pose([self.LID_COM_OFFSET, 0, th / 2]), inertia)
+        lid.set_joint_name("lid_hinge")
+        lid.set_joint_properties(
+            "revolute",
+            limits=[list(self.HINGE_LIMITS)],
+            pose_in_parent=sapien.Pose([-hx, 0, h + self.LID_GAP], _Q_X_TO_MINUS_Y),
+            pose_in_child=sapien.Pose([0, 0, 0], _Q_X_TO_MINUS_Y),
+            damping=self.HINGE_DAMPING,
+        )
+        builder.initial_pose = sapien.Pose(p=[0.5, 0.6, self.BOX_LIFT])  # clear of the robot until reset
+        self.box = builder.build(name="box", fix_root_link=True)
+        self.hinge = self.box.active_joints_map["lid_hinge"]
+        self.hinge.set_friction(self.HINGE_FRICTION)  # the builder's friction argument is ignored
+        self.lid = self.box.links_map["lid"]
+
+        # Fixed points: in the lid frame (free edge, push point) and the box frame (closed free edge).
+        self._free_edge_local = [L, 0.0, 0.0]
+        self._push_local = [self.PUSH_RADIUS, 0.0, th]
+        self._closed_free_edge_box = [-hx + L, 0.0, h + self.LID_GAP]
+
+    def _initialize_episode(self, env_idx: torch.Tensor, options: dict):
+        super()._initialize_episode(env_idx, options)
+        with torch.device(self.device):
+            b = len(env_idx)
+
+            def uniform(lo_hi, n):
+                lo, hi = lo_hi
+                return lo + (hi - lo) * torch.rand(n)
+
+            p = torch.zeros((b, 3))
+            p[:, 0] = uniform(self.CENTER_X_RANGE, b)
+            p[:, 1] = uniform(self.CENTER_Y_RANGE, b)
+            p[:, 2] = self.BOX_LIFT
+            yaw = uniform(self.YAW_RANGE, b)
+            q = torch.zeros((b, 4))
+            q[:, 0] = torch.cos(yaw / 2)
+            q[:, 3] = torch.sin(yaw / 2)
+            self.box.set_pose(Pose.create_from_pq(p=p, q=q))
+            angle = uniform(self.INIT_ANGLE_RANGE, b)
+            self.box.set_qpos(angle[:, None])
+            self.box.set_qvel(torch.zeros((b, 1)))
+
+    # ------------------------------------------------------------------ goals and evaluation
+    def _local_point(self, pose: Pose, local) -> torch.Tensor:
+        """World position of a fixed point given in the frame of ``pose`` (batched)."""
+        pt = torch.tensor(local, dtype=torch.float32, device=self.device)
+        return (pose * Pose.create_from_pq(p=pt)).p
+
+    def _achieved_goal(self) -> torch.Tensor:
+        return self._local_point(self.lid.pose, self._free_edge_local)
+
+    def _desired_goal(self) -> torch.Tensor:
+        return self._local_point(self.box.pose, self._closed_free_edge_box)
+
+    def push_point(self) -> torch.Tensor:
+        """(N, 3) middle of the lid's outer face, ``PUSH_RADIUS`` from the hinge, world frame."""
+        return self._local_point(self.lid.pose, self._push_local)
+
+    def _evaluate_extra(self) -> dict:
+        return dict(lid_angle=self.box.qpos[:, 0].clone())
+
+    # ------------------------------------------------------------------ observations
+    def _object_pose(self) -> torch.Tensor:
+        return self.lid.pose.raw_pose
+
+    def _joint_state(self) -> torch.Tensor:
+        return torch.cat([self.box.qpos[:, :1], self.box.qvel[:, :1]], dim=-1)
+
+    # ------------------------------------------------------------------ rewards
+    def _dense_shaping(self, info: dict) -> torch.Tensor:
+        reach = torch.linalg.norm(self.agent.tcp.pose.p - self.push_point(), dim=-1)
+        return 0.5 * (1.0 - torch.tanh(10.0 * reach))
