@@ -174,3 +174,45 @@ class ReachTargetSolver(TcpWaypointSolver):
 
     def target_tcp(self, obs):
         return split_goal_obs(obs)[2]
+
+
+from tasks.close_box import CloseBoxEnv  # noqa: E402
+
+
+@register_solver(CloseBoxEnv)
+class CloseBoxSolver(TcpWaypointSolver):
+    """Push the lid's outer face shut: stand off in front of it, then sweep the push point down its arc.
+
+    Stateless, from the observation only: the lid pose (origin on the hinge axis at the inner face, x
+    along the lid, z = outer normal) and the hinge angle. With the TCP at (u, w) in the lid frame
+    (distance along the lid, height above its inner face) it is engaged when ``|u - PUSH_RADIUS| <
+    engage_du`` and ``0 < w < engage_w``; engaged, it aims at the push point rotated ``lead`` rad further
+    shut (so it keeps pressing, down to 0.15 rad past closed), otherwise at the stand-off point
+    ``standoff`` m off the outer face.
+    """
+
+    standoff = 0.07
+    engage_du = 0.035
+    engage_w = 0.09
+    lead = 0.35  # rad
+    press_w = 0.005  # target height above the lid's inner face while pushing (inside the lid: keep pressing)
+
+    def __init__(self, env, **kwargs):
+        super().__init__(env, **kwargs)
+        self.push_radius = float(type(self.env).PUSH_RADIUS)
+
+    def target_tcp(self, obs):
+        o = split_goal_obs(obs)[0]
+        lid = o[:, OBS_SLICES["object_pose"]]
+        lid_p, lid_q = lid[:, :3], lid[:, 3:]
+        tcp = rc.quaternion_apply(rc.quaternion_invert(lid_q), o[:, OBS_SLICES["tcp_pose"]][:, :3] - lid_p)
+        u, w = tcp[:, 0], tcp[:, 2]
+        engaged = ((u - self.push_radius).abs() < self.engage_du) & (w > 0) & (w < self.engage_w)
+        angle = o[:, OBS_SLICES["joint_qpos"]][:, 0]
+        d = torch.where(engaged, torch.clamp(angle + 0.15, max=self.lead), torch.zeros_like(angle))
+        wt = torch.where(engaged, torch.full_like(d, self.press_w), torch.full_like(d, self.standoff))
+        r = self.push_radius
+        # (r, 0, wt) turned about the lid's +y axis by d (= closing by d), in the lid frame
+        local = torch.stack([r * torch.cos(d) + wt * torch.sin(d), torch.zeros_like(d),
+                             -r * torch.sin(d) + wt * torch.cos(d)], dim=-1)
+        return lid_p + rc.quaternion_apply(lid_q, local)
