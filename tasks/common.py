@@ -100,6 +100,16 @@ def registered_task_ids() -> list:
                   if isinstance(spec.cls, type) and issubclass(spec.cls, PandaGoalEnv))
 
 
+def episode_length(env) -> Optional[int]:
+    """Time limit of a gym.make'd ManiSkill env (its TimeLimitWrapper keeps it, not ``env.spec``)."""
+    while env is not None:
+        steps = getattr(env, "_max_episode_steps", None)
+        if steps is not None:
+            return int(steps)
+        env = getattr(env, "env", None)
+    return None
+
+
 def split_goal_obs(x):
     """Split a flat state observation (..., OBS_DIM + 6) into (observation, achieved_goal, desired_goal).
 

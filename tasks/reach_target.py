@@ -22,7 +22,8 @@ class ReachTargetEnv(PandaGoalEnv):
       table top at z = 0), all reachable by the Panda;
     - ball centres are at least ``MIN_BALL_SEPARATION`` (0.10 m) apart, so a TCP within tolerance of the red
       ball is never within tolerance of a distractor, and the red ball is at least ``MIN_START_DISTANCE``
-      (0.15 m) from the TCP's rest position, so no episode starts solved (rejection sampling, batched);
+      (0.25 m) from the TCP's rest position, so no episode starts solved and a random policy rarely
+      touches it (~2% of episodes; rejection sampling, batched);
     - the robot's rest joint angles get Gaussian noise (``robot_init_qpos_noise``, default 0.02 rad).
 
     **Success Conditions:**
@@ -36,7 +37,7 @@ class ReachTargetEnv(PandaGoalEnv):
     BALL_BOX_HIGH = (0.10, 0.25, 0.35)
     GOAL_BOX_LOW, GOAL_BOX_HIGH = BALL_BOX_LOW, BALL_BOX_HIGH
     MIN_BALL_SEPARATION = 0.10
-    MIN_START_DISTANCE = 0.15
+    MIN_START_DISTANCE = 0.25
     REST_TCP_POS = (0.0, 0.0, 0.170)  # TCP at the noiseless Panda rest pose (measured; qpos noise moves it a few cm)
     _MAX_SAMPLING_ROUNDS = 100
 
