@@ -40,6 +40,8 @@ class CloseBoxEnv(PandaGoalEnv):
     - its yaw is uniform in [-0.1, 0.1] rad (0 = hinge edge facing the robot, i.e. facing -x)
     - the lid's initial angle is uniform in [0.5, 1.3] rad open, at rest
     - the robot's joints get the usual ManiSkill Gaussian noise (``robot_init_qpos_noise``, 0.02 rad)
+    - hence the desired goal lies in ``GOAL_BOX_LOW``..``GOAL_BOX_HIGH`` = x in [0.195, 0.235],
+      y in [-0.11, 0.11], z in [0.09, 0.10]
 
     **Success Conditions:**
     - the lid angle is below 0.1 rad. Equivalently (and this is how it is evaluated): the achieved goal,
@@ -79,6 +81,10 @@ class CloseBoxEnv(PandaGoalEnv):
     YAW_RANGE = (-0.1, 0.1)
     INIT_ANGLE_RANGE = (0.5, 1.3)
     SUCCESS_ANGLE = 0.1
+    # Every desired goal (closed free-edge midpoint, 0.07 m ahead of the box centre at z = 0.093) lies in
+    # this box: x in [0.13 + 0.07 cos 0.1, 0.16 + 0.07], |y| <= 0.10 + 0.07 sin 0.1, z = 0.093.
+    GOAL_BOX_LOW = (0.195, -0.11, 0.09)
+    GOAL_BOX_HIGH = (0.235, 0.11, 0.10)
 
     goal_tolerance = float(2 * LID_LENGTH * np.sin(SUCCESS_ANGLE / 2))
 
