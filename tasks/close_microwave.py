@@ -36,6 +36,8 @@ class CloseMicrowaveEnv(PandaGoalEnv):
     - its yaw is uniform in [-0.1, 0.1] rad (0 = opening facing the robot, i.e. facing -x)
     - the door's initial angle is uniform in [0.4, 1.2] rad open, at rest
     - the robot's joints get the usual ManiSkill Gaussian noise (``robot_init_qpos_noise``, 0.02 rad)
+    - hence the desired goal lies in ``GOAL_BOX_LOW``..``GOAL_BOX_HIGH`` = x in [0.0, 0.095],
+      y in [0.38, 0.48], z in [0.11, 0.12]
 
     **Success Conditions:**
     - the door angle is below 0.1 rad. Equivalently (and this is how it is evaluated): the achieved
@@ -69,7 +71,7 @@ class CloseMicrowaveEnv(PandaGoalEnv):
     # Handle bar on the outer face near the free edge (door frame: x = -thickness is the outer face).
     HANDLE_HALF_SIZE = (0.0125, 0.0075, 0.06)
     HANDLE_INSET = 0.03  # handle centre, from the free edge
-    PUSH_INSET = 0.075  # push point (outer face, hinge side of the handle), from the free edge
+    PUSH_RADIUS = DOOR_LENGTH - 0.075  # push point on the outer face (hinge side of the handle), from the hinge axis
 
     # Randomization ranges (documented in the class docstring; tests check them).
     CENTER_X_RANGE = (0.15, 0.21)
@@ -77,6 +79,11 @@ class CloseMicrowaveEnv(PandaGoalEnv):
     YAW_RANGE = (-0.1, 0.1)
     INIT_ANGLE_RANGE = (0.4, 1.2)
     SUCCESS_ANGLE = 0.1
+    # Every desired goal (closed free-edge midpoint, at (-0.134, +0.15, 0.113) in the body frame) lies in
+    # this box: x in [0.15 - 0.134 cos 0.1 - 0.15 sin 0.1, 0.21 - 0.134 cos 0.1 + 0.15 sin 0.1] = [0.002, 0.092],
+    # y in [0.25 + 0.15 cos 0.1 - 0.134 sin 0.1, 0.31 + 0.15 cos 0.1 + 0.134 sin 0.1] = [0.386, 0.473], z = 0.113.
+    GOAL_BOX_LOW = (0.0, 0.38, 0.11)
+    GOAL_BOX_HIGH = (0.095, 0.48, 0.12)
 
     goal_tolerance = float(2 * DOOR_LENGTH * np.sin(SUCCESS_ANGLE / 2))
 
@@ -134,7 +141,7 @@ class CloseMicrowaveEnv(PandaGoalEnv):
 
         # Fixed points: in the door frame (free edge, push point) and the body frame (closed free edge).
         self._free_edge_local = [0.0, L, hd / 2]
-        self._push_local = [-th, L - self.PUSH_INSET, hd / 2]
+        self._push_local = [-th, self.PUSH_RADIUS, hd / 2]
         self._closed_free_edge_body = [-hx - self.DOOR_GAP, -hy + L, self.DOOR_LIFT + hd / 2]
 
     def _initialize_episode(self, env_idx: torch.Tensor, options: dict):
@@ -171,7 +178,7 @@ class CloseMicrowaveEnv(PandaGoalEnv):
         return self._local_point(self.microwave.pose, self._closed_free_edge_body)
 
     def push_point(self) -> torch.Tensor:
-        """(N, 3) point on the door's outer face beside the handle (hinge side), world frame."""
+        """(N, 3) point on the door's outer face beside the handle (``PUSH_RADIUS`` from the hinge), world frame."""
         return self._local_point(self.door.pose, self._push_local)
 
     def _evaluate_extra(self) -> dict:

@@ -216,3 +216,59 @@ class CloseBoxSolver(TcpWaypointSolver):
         local = torch.stack([r * torch.cos(d) + wt * torch.sin(d), torch.zeros_like(d),
                              -r * torch.sin(d) + wt * torch.cos(d)], dim=-1)
         return lid_p + rc.quaternion_apply(lid_q, local)
+
+
+from tasks.close_microwave import CloseMicrowaveEnv  # noqa: E402
+
+
+@register_solver(CloseMicrowaveEnv)
+class CloseMicrowaveSolver(TcpWaypointSolver):
+    """Push the door's outer face shut: stand off beside the handle, then sweep the push point along its arc.
+
+    Stateless, from the observation only: the door pose (origin on the vertical hinge axis at the door's
+    bottom, x = inner normal, y along the door towards the free edge) and the hinge angle. With the TCP at
+    u along the door and w out from its hinge plane (outer side), it is engaged when ``|u - PUSH_RADIUS| <
+    engage_du``, ``0 < w < engage_w`` and the TCP is within ``engage_dz`` of ``push_height``; engaged, it
+    aims at the contact point rotated ``lead`` rad further shut (so it keeps pressing, down to 0.08 rad
+    past closed), otherwise at the stand-off point ``standoff`` m further out. The fingers point down and
+    the palm is turned parallel to the door (joint control), so its 20 cm width never meets the door
+    edge-on; ``push_height`` keeps the palm above the handle.
+    """
+
+    push_height = 0.15  # TCP z; door spans z in [0.01, 0.216], handle top at 0.173, palm bottom ~TCP + 0.034
+    contact_w = CloseMicrowaveEnv.DOOR_THICKNESS + 0.02  # TCP distance from the hinge plane while pushing
+    standoff = 0.06
+    engage_du = 0.03
+    engage_w = contact_w + standoff + 0.02
+    engage_dz = 0.03
+    lead = 0.3  # rad
+
+    def __init__(self, env, **kwargs):
+        super().__init__(env, **kwargs)
+        self.push_radius = float(type(self.env).PUSH_RADIUS)
+
+    def target_tcp(self, obs):
+        o = split_goal_obs(obs)[0]
+        door = o[:, OBS_SLICES["object_pose"]]
+        door_p, door_q = door[:, :3], door[:, 3:]
+        tcp_w = o[:, OBS_SLICES["tcp_pose"]][:, :3]
+        tcp = rc.quaternion_apply(rc.quaternion_invert(door_q), tcp_w - door_p)
+        u, w = tcp[:, 1], -tcp[:, 0]
+        engaged = ((u - self.push_radius).abs() < self.engage_du) & (w > 0) & (w < self.engage_w) \
+            & ((tcp_w[:, 2] - self.push_height).abs() < self.engage_dz)
+        angle = o[:, OBS_SLICES["joint_qpos"]][:, 0]
+        d = torch.where(engaged, torch.clamp(angle + 0.08, max=self.lead), torch.zeros_like(angle))
+        wt = torch.where(engaged, torch.full_like(d, self.contact_w),
+                         torch.full_like(d, self.contact_w + self.standoff))
+        r = self.push_radius
+        # (-wt, r) turned about the door's vertical z axis by -d (= closing by d), in the door frame
+        local = torch.stack([-wt * torch.cos(d) + r * torch.sin(d), wt * torch.sin(d) + r * torch.cos(d),
+                             torch.zeros_like(d)], dim=-1)
+        target = door_p + rc.quaternion_apply(door_q, local)
+        target[:, 2] = self.push_height
+        return target
+
+    def target_quat(self, obs):
+        """Fingers down, palm parallel to the door: the rest orientation turned by the door's yaw."""
+        door_q = split_goal_obs(obs)[0][:, OBS_SLICES["object_pose"]][:, 3:]
+        return rc.quaternion_multiply(door_q, self._down.expand(obs.shape[0], 4))
