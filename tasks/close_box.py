@@ -32,8 +32,9 @@ class CloseBoxEnv(PandaGoalEnv):
     spring-balanced lid stay) and the hinge has friction 0.5 and damping 0.2 N m s/rad: it holds any
     angle when nothing touches it (measured drift < 1e-6 rad over 100 idle steps at 0.02 to 1.85 rad)
     and a push of a few newtons closes it (the scripted solver sweeps it shut at ~2 rad/s with a
-    ~16 N contact force). (A uniform lid, centre of mass half-way out, needs PhysX joint friction
-    >= 3 to hold, and then a 20 N push at the free edge barely moves it; hence the counterweight.)
+    ~16 N contact force). (A uniform lid, centre of mass half-way out, still creeps shut with
+    PhysX joint friction 2.5, ~1e-2 rad per 100 steps near closed, and that friction makes it several
+    times stiffer to push; hence the counterweight.)
 
     **Randomizations:**
     - the box body's centre is placed uniformly in x in [0.13, 0.16], y in [-0.10, 0.10] (metres, world
