@@ -18,46 +18,50 @@ _Q_X_TO_Z = [float(np.sqrt(0.5)), 0.0, -float(np.sqrt(0.5)), 0.0]
 class CloseMicrowaveEnv(PandaGoalEnv):
     """
     **Task Description:**
-    Close the door of a microwave standing on the table in front of the Panda. The microwave is a box
-    shell (bottom, top, back and two side walls; the front facing the robot is open) built from
-    primitive collision boxes, 0.26 m deep (x) x 0.30 m wide (y) x 0.22 m tall. Its door (0.30 m wide,
-    1.5 cm thick, with a handle bar near its free edge on the outer face) turns on a vertical revolute
-    hinge at the front-left corner (the corner nearer the robot's centre line, -y side). The hinge angle
-    is 0 when closed and grows as the free edge swings towards the robot (limits [0, pi/2]). The door
-    is lifted 1 cm above the table and its hinge has damping 1.0 N m s/rad and friction 0.1 N m, so it
-    holds its angle when nothing touches it and a push of a few newtons closes it.
+    Close the door of a microwave standing on the table in front of the Panda, to its left (+y). The
+    microwave is a box shell (bottom, top, back and two side walls; the front facing the robot is open)
+    built from primitive collision boxes, 0.26 m deep (x) x 0.30 m wide (y) x 0.18 m tall, fixed to the
+    table. Its door (0.30 m wide, 0.166 m tall, 1.5 cm thick, with a handle bar near its free edge on the
+    outer face) turns on a vertical revolute hinge at the front corner nearer the robot's centre line
+    (-y side), on the door's outer face. The hinge angle is 0 when closed and grows as the free edge
+    swings towards the robot (limits [0, pi/2]). The door is lifted 1 cm above the table and its hinge
+    has damping 1.0 N m s/rad and friction 0.1 N m (a vertical hinge feels no gravity torque): it holds
+    its angle when nothing touches it (no measurable drift over 100 idle steps) and a push of a few
+    newtons closes it.
 
-    The resting TCP (near (0, 0, 0.17)) lies outside the door (on its outer side) at every initial
-    angle and pose, so the robot never starts inside the microwave's swing.
+    The microwave stands to the side so that the resting TCP (near (0, 0, 0.17)) and the open fingers
+    lie outside the door (on its outer side) and clear of it at every initial angle and pose; the body
+    is low enough (0.18 m) that the resting palm passes over the door.
 
     **Randomizations:**
-    - the microwave body's centre is placed uniformly in x in [0.15, 0.21], y in [0.25, 0.31] (metres,
+    - the microwave body's centre is placed uniformly in x in [0.12, 0.2], y in [0.29, 0.35] (metres,
       world frame; table top at z = 0, robot base at x = -0.615), on the table
-    - its yaw is uniform in [-0.1, 0.1] rad (0 = opening facing the robot, i.e. facing -x)
+    - its yaw is uniform in [-0.15, 0.15] rad (0 = opening facing the robot, i.e. facing -x)
     - the door's initial angle is uniform in [0.4, 1.2] rad open, at rest
     - the robot's joints get the usual ManiSkill Gaussian noise (``robot_init_qpos_noise``, 0.02 rad)
-    - hence the desired goal lies in ``GOAL_BOX_LOW``..``GOAL_BOX_HIGH`` = x in [0.0, 0.095],
-      y in [0.38, 0.48], z in [0.11, 0.12]
+    - hence the desired goal lies in ``GOAL_BOX_LOW``..``GOAL_BOX_HIGH`` = x in [-0.05, 0.08],
+      y in [0.41, 0.53], z in [0.09, 0.10]
 
     **Success Conditions:**
     - the door angle is below 0.1 rad. Equivalently (and this is how it is evaluated): the achieved
-      goal, the midpoint of the door's free edge on its inner face (3-D, world frame; at radius
+      goal, the midpoint of the door's free edge on its outer face (3-D, world frame; at radius
       L = 0.30 m from the hinge axis), lies within ``goal_tolerance = 2 L sin(0.05) ~= 0.0300 m`` of
       the desired goal, the same point with the door closed. The chord between the two positions of
       the point is 2 L sin(angle / 2), so "distance < tolerance" is exactly "angle < 0.1".
 
-    **Observation slots** (see ``tasks.common``): task object pose = the door link's pose, task joint =
-    hinge angle and angular velocity, no distractors.
+    **Observation slots** (see ``tasks.common``): task object pose = the door link's pose (origin on the
+    hinge axis; the body pose follows from it and the angle), task joint = hinge angle and angular
+    velocity, no distractors.
 
     **Dense reward:** the common goal term ``1 - tanh(5 * goal_distance)`` plus a reaching term
-    ``0.5 * (1 - tanh(10 * ||tcp - push_point||))`` towards the push point on the door's outer face beside
-    the handle; 2.0 on success.
+    ``0.5 * (1 - tanh(10 * ||tcp - push_point||))`` towards the push point, the middle of the door's outer
+    face (``PUSH_RADIUS`` from the hinge); 2.0 on success.
     """
 
     # Body (shell) dimensions, metres.
     BODY_DEPTH = 0.26  # x, away from the robot
     BODY_WIDTH = 0.30  # y
-    BODY_HEIGHT = 0.22  # z
+    BODY_HEIGHT = 0.18  # z
     WALL = 0.01
     # Door.
     DOOR_THICKNESS = 0.015
@@ -68,22 +72,22 @@ class CloseMicrowaveEnv(PandaGoalEnv):
     HINGE_DAMPING = 1.0
     HINGE_FRICTION = 0.1
     HINGE_LIMITS = (0.0, float(np.pi / 2))
-    # Handle bar on the outer face near the free edge (door frame: x = -thickness is the outer face).
-    HANDLE_HALF_SIZE = (0.0125, 0.0075, 0.06)
+    # Handle bar on the outer face near the free edge (door frame: x = 0 is the outer face).
+    HANDLE_HALF_SIZE = (0.0125, 0.0075, 0.05)
     HANDLE_INSET = 0.03  # handle centre, from the free edge
-    PUSH_RADIUS = DOOR_LENGTH - 0.075  # push point on the outer face (hinge side of the handle), from the hinge axis
+    PUSH_RADIUS = DOOR_LENGTH / 2  # push point: middle of the outer face, this far from the hinge axis
 
     # Randomization ranges (documented in the class docstring; tests check them).
-    CENTER_X_RANGE = (0.15, 0.21)
-    CENTER_Y_RANGE = (0.25, 0.31)
-    YAW_RANGE = (-0.1, 0.1)
+    CENTER_X_RANGE = (0.12, 0.20)
+    CENTER_Y_RANGE = (0.29, 0.35)
+    YAW_RANGE = (-0.15, 0.15)
     INIT_ANGLE_RANGE = (0.4, 1.2)
     SUCCESS_ANGLE = 0.1
-    # Every desired goal (closed free-edge midpoint, at (-0.134, +0.15, 0.113) in the body frame) lies in
-    # this box: x in [0.15 - 0.134 cos 0.1 - 0.15 sin 0.1, 0.21 - 0.134 cos 0.1 + 0.15 sin 0.1] = [0.002, 0.092],
-    # y in [0.25 + 0.15 cos 0.1 - 0.134 sin 0.1, 0.31 + 0.15 cos 0.1 + 0.134 sin 0.1] = [0.386, 0.473], z = 0.113.
-    GOAL_BOX_LOW = (0.0, 0.38, 0.11)
-    GOAL_BOX_HIGH = (0.095, 0.48, 0.12)
+    # Every desired goal (closed free-edge midpoint, at (a, b, z) = (-0.149, +0.15, 0.093) in the body
+    # frame) lies in this box: x = cx + a cos(yaw) - b sin(yaw) in [0.12 - 0.170, 0.20 - 0.125],
+    # y = cy + a sin(yaw) + b cos(yaw) in [0.29 + 0.126, 0.35 + 0.171], z = 0.093.
+    GOAL_BOX_LOW = (-0.05, 0.41, 0.09)
+    GOAL_BOX_HIGH = (0.08, 0.53, 0.10)
 
     goal_tolerance = float(2 * DOOR_LENGTH * np.sin(SUCCESS_ANGLE / 2))
 
@@ -114,17 +118,18 @@ class CloseMicrowaveEnv(PandaGoalEnv):
         door = builder.create_link_builder(body)
         door.set_name("door")
         L, th, hd = self.DOOR_LENGTH, self.DOOR_THICKNESS, self.DOOR_HEIGHT
-        # Door frame: origin on the hinge axis at the door's bottom; closed, it runs along +y, its inner
-        # face at x = 0 and its outer face (towards the robot) at x = -thickness.
+        # Door frame: origin on the hinge axis, at the bottom of the door's outer face (the hinge sits at
+        # the outer corner, so the opened door stays on the +y side of its hinge); closed, the door runs
+        # along +y, its outer face (towards the robot) at x = 0 and its inner face at x = +thickness.
         parts = [
-            ([-th / 2, L / 2, hd / 2], [th / 2, L / 2, hd / 2]),
-            ([-th - self.HANDLE_HALF_SIZE[0], L - self.HANDLE_INSET, hd / 2], list(self.HANDLE_HALF_SIZE)),
+            ([th / 2, L / 2, hd / 2], [th / 2, L / 2, hd / 2]),
+            ([-self.HANDLE_HALF_SIZE[0], L - self.HANDLE_INSET, hd / 2], list(self.HANDLE_HALF_SIZE)),
         ]
         for centre, half in parts:
             door.add_box_collision(sapien.Pose(centre), half)
             if render:
                 door.add_box_visual(sapien.Pose(centre), half, material=door_mat)
-        hinge_in_body = sapien.Pose([-hx - self.DOOR_GAP, -hy, self.DOOR_LIFT], _Q_X_TO_Z)
+        hinge_in_body = sapien.Pose([-hx - self.DOOR_GAP - th, -hy, self.DOOR_LIFT], _Q_X_TO_Z)
         door.set_joint_name("door_hinge")
         door.set_joint_properties(
             "revolute",
@@ -141,8 +146,8 @@ class CloseMicrowaveEnv(PandaGoalEnv):
 
         # Fixed points: in the door frame (free edge, push point) and the body frame (closed free edge).
         self._free_edge_local = [0.0, L, hd / 2]
-        self._push_local = [-th, self.PUSH_RADIUS, hd / 2]
-        self._closed_free_edge_body = [-hx - self.DOOR_GAP, -hy + L, self.DOOR_LIFT + hd / 2]
+        self._push_local = [0.0, self.PUSH_RADIUS, hd / 2]
+        self._closed_free_edge_body = [-hx - self.DOOR_GAP - th, -hy + L, self.DOOR_LIFT + hd / 2]
 
     def _initialize_episode(self, env_idx: torch.Tensor, options: dict):
         super()._initialize_episode(env_idx, options)
@@ -178,7 +183,7 @@ class CloseMicrowaveEnv(PandaGoalEnv):
         return self._local_point(self.microwave.pose, self._closed_free_edge_body)
 
     def push_point(self) -> torch.Tensor:
-        """(N, 3) point on the door's outer face beside the handle (``PUSH_RADIUS`` from the hinge), world frame."""
+        """(N, 3) middle of the door's outer face, ``PUSH_RADIUS`` from the hinge, world frame."""
         return self._local_point(self.door.pose, self._push_local)
 
     def _evaluate_extra(self) -> dict:
