@@ -29,9 +29,10 @@ class CloseMicrowaveEnv(PandaGoalEnv):
     its angle when nothing touches it (no measurable drift over 100 idle steps) and a push of a few
     newtons closes it.
 
-    The microwave stands to the side so that the resting TCP (near (0, 0, 0.17)) and the open fingers
-    lie outside the door (on its outer side) and clear of it at every initial angle and pose; the body
-    is low enough (0.18 m) that the resting palm passes over the door.
+    The microwave stands to the side (hinge at y >= 0.11) so that the resting hand (TCP near
+    (0, 0, 0.17), open fingers) is never between the door and the body: at every initial angle and pose
+    the TCP is beside the hinge or on the door's outer side, and the hand starts clear of the microwave
+    (the body is low enough, 0.18 m, that the resting palm passes over the door).
 
     **Randomizations:**
     - the microwave body's centre is placed uniformly in x in [0.12, 0.2], y in [0.29, 0.35] (metres,
