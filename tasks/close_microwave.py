@@ -8,7 +8,7 @@ import torch
 from mani_skill.utils.registration import register_env
 from mani_skill.utils.structs import Pose
 
-from tasks.common import DEFAULT_MAX_EPISODE_STEPS, PandaGoalEnv
+from tasks.common import DEFAULT_MAX_EPISODE_STEPS, PandaGoalEnv, transform_points
 
 # x-axis -> +z: a joint frame with this rotation turns about the vertical (joint axis = frame x-axis).
 _Q_X_TO_Z = [float(np.sqrt(0.5)), 0.0, -float(np.sqrt(0.5)), 0.0]
@@ -146,9 +146,12 @@ class CloseMicrowaveEnv(PandaGoalEnv):
         self.door = self.microwave.links_map["door"]
 
         # Fixed points: in the door frame (free edge, push point) and the body frame (closed free edge).
-        self._free_edge_local = [0.0, L, hd / 2]
-        self._push_local = [0.0, self.PUSH_RADIUS, hd / 2]
-        self._closed_free_edge_body = [-hx - self.DOOR_GAP - th, -hy + L, self.DOOR_LIFT + hd / 2]
+        def point(xyz):
+            return torch.tensor(xyz, dtype=torch.float32, device=self.device)
+
+        self._free_edge_local = point([0.0, L, hd / 2])
+        self._push_local = point([0.0, self.PUSH_RADIUS, hd / 2])
+        self._closed_free_edge_body = point([-hx - self.DOOR_GAP - th, -hy + L, self.DOOR_LIFT + hd / 2])
 
     def _initialize_episode(self, env_idx: torch.Tensor, options: dict):
         super()._initialize_episode(env_idx, options)
@@ -172,20 +175,16 @@ class CloseMicrowaveEnv(PandaGoalEnv):
             self.microwave.set_qvel(torch.zeros((b, 1)))
 
     # ------------------------------------------------------------------ goals and evaluation
-    def _local_point(self, pose: Pose, local) -> torch.Tensor:
-        """World position of a fixed point given in the frame of ``pose`` (batched)."""
-        pt = torch.tensor(local, dtype=torch.float32, device=self.device)
-        return (pose * Pose.create_from_pq(p=pt)).p
-
     def _achieved_goal(self) -> torch.Tensor:
-        return self._local_point(self.door.pose, self._free_edge_local)
+        return transform_points(self.door.pose.raw_pose, self._free_edge_local)
 
     def _desired_goal(self) -> torch.Tensor:
-        return self._local_point(self.microwave.pose, self._closed_free_edge_body)
+        # Read from the body pose every step (not cached at reset) so set_state / pose overrides stay exact.
+        return transform_points(self.microwave.pose.raw_pose, self._closed_free_edge_body)
 
     def push_point(self) -> torch.Tensor:
         """(N, 3) middle of the door's outer face, ``PUSH_RADIUS`` from the hinge, world frame."""
-        return self._local_point(self.door.pose, self._push_local)
+        return transform_points(self.door.pose.raw_pose, self._push_local)
 
     def _evaluate_extra(self) -> dict:
         return dict(door_angle=self.microwave.qpos[:, 0].clone())
@@ -199,5 +198,7 @@ class CloseMicrowaveEnv(PandaGoalEnv):
 
     # ------------------------------------------------------------------ rewards
     def _dense_shaping(self, info: dict) -> torch.Tensor:
-        reach = torch.linalg.norm(self.agent.tcp.pose.p - self.push_point(), dim=-1)
+        tcp = getattr(self, "tcp_pose_at_eval", None)
+        tcp = self.agent.tcp.pose.raw_pose if tcp is None else tcp
+        reach = torch.linalg.norm(tcp[:, :3] - self.push_point(), dim=-1)
         return 0.5 * (1.0 - torch.tanh(10.0 * reach))
