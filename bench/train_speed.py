@@ -1,0 +1,378 @@
+"""Training-loop speed: env steps/s of a full SAC loop (1 gradient update per env step, batch 256,
+256x256 networks, after a warm-up) for our ``sac_her_per`` on ReachTarget-v1 beside Stable-Baselines3's
+SAC + HerReplayBuffer (future, n_sampled_goal=4) on the same task and settings, in one process; plus the
+per-update cost (ms) of each, and of ours for every method (sac, sac_her_per, dual_buffer) x SAC variant
+(paper, modern).
+
+    python bench/train_speed.py [--steps 2000] [--threads 1] [--chunk 500] [--updates 300]
+    python bench/train_speed.py --profile [--variant paper] [--updates 200]   # where one SAC.update goes
+
+Method. Each contender warms up untimed (``learning_starts`` = 1000 random steps, then 100 learning steps).
+Then the timed env steps are run in alternating chunks (ours paper, ours modern, SB3, ours paper, ...) so the
+contenders share the shared machine's load. Ours is our real loop: ``Trainer.run(stop_at=...)`` (evaluation
+and checkpoints pushed beyond the run; the stop-checkpoint is replaced by a time stamp, so a chunk is timed
+from the call to the end of its last episode). SB3 is ``model.learn(chunk, reset_num_timesteps=False)``.
+Both use ``torch.set_num_threads(--threads)``. Episodes are 50 steps, successes do not end them (both).
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+import time
+import warnings
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+
+
+def _early_threads() -> int:
+    for i, a in enumerate(sys.argv):
+        if a == "--threads" and i + 1 < len(sys.argv):
+            return int(sys.argv[i + 1])
+        if a.startswith("--threads="):
+            return int(a.split("=", 1)[1])
+    return 1
+
+
+os.environ.setdefault("OMP_NUM_THREADS", str(_early_threads()))
+os.environ.setdefault("MKL_NUM_THREADS", str(_early_threads()))
+warnings.filterwarnings("ignore")
+
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+import gymnasium as gym  # noqa: E402
+
+ENV_ID = "ReachTarget-v1"
+EP_LEN = 50
+LEARNING_STARTS = 1000
+LEARN_WARMUP = 100          # learning steps after learning_starts, untimed
+CAPACITY = 1_000_000
+ENV_KW = dict(sim_backend="physx_cpu", render_backend="none", obs_mode="state",
+              control_mode="pd_joint_delta_pos", reward_mode="sparse", max_episode_steps=EP_LEN)
+
+
+# --------------------------------------------------------------------------- ours
+def our_config(method: str, variant: str, threads: int, seed: int = 0):
+    from maniskill_dualher.config import ReplayConfig, RunConfig, SACConfig
+    return RunConfig(
+        env_id=ENV_ID, method=method, seed=seed, total_steps=10**9, max_episode_steps=EP_LEN,
+        control_mode=ENV_KW["control_mode"], sim_backend=ENV_KW["sim_backend"], reward_mode="sparse",
+        eval_every=10**9, checkpoint_every=10**9, torch_threads=threads,
+        sac=SACConfig(variant=variant, batch_size=256, hidden=(256, 256), updates_per_step=1.0,
+                      random_steps=LEARNING_STARTS, learning_starts=LEARNING_STARTS),
+        replay=ReplayConfig(capacity=CAPACITY, her_strategy="future", her_k=4,
+                            solver_demos=5 if method == "dual_buffer" else 0))
+
+
+class Ours:
+    """Our Trainer, driven in time slices with run(stop_at=...)."""
+
+    def __init__(self, method: str, variant: str, threads: int, tmp: str):
+        from maniskill_dualher.train import Trainer
+        self.name = f"ours {method} ({variant})"
+        self.threads = threads
+        out = os.path.join(tmp, f"{method}_{variant}")
+        self.tr = Trainer(our_config(method, variant, threads), out, show_progress=False)
+        self._stop_t = None
+
+        def stamp():  # replaces the stop-checkpoint: the chunk ends when its last episode is stored
+            self._stop_t = time.perf_counter()
+        self.tr.save_checkpoint = stamp
+
+    @property
+    def steps(self) -> int:
+        return self.tr.env_steps
+
+    def run(self, n: int) -> float:
+        """Run >= n more env steps (whole episodes); returns seconds."""
+        torch.set_num_threads(self.threads)
+        target = self.tr.env_steps + n
+        t0 = time.perf_counter()
+        self._stop_t = None
+        self.tr.run(stop_at=target)
+        assert self._stop_t is not None and self.tr.env_steps >= target
+        return self._stop_t - t0
+
+    def warmup(self) -> float:
+        """Random steps up to learning_starts (timed, reported as the no-update speed), then learning steps."""
+        dt = self.run(LEARNING_STARTS)
+        s0 = self.steps
+        self.run(LEARN_WARMUP)
+        assert self.tr.updates > 0, "no gradient updates after warm-up"
+        return s0 / dt
+
+    def update_fns(self):
+        logs = {}
+        tr = self.tr
+
+        def full():  # exactly the loop's update: sample + SAC.update + priority write-back
+            tr._update(logs)
+        batch = tr.method.sample(tr.cfg.sac.batch_size)
+
+        def sac_only():
+            tr.agent.update(batch)
+        return full, sac_only
+
+    def close(self):
+        self.tr.env.close()
+
+
+# --------------------------------------------------------------------------- SB3
+class GoalDictEnv(gym.Env):
+    """Our task as a single-env gymnasium GoalEnv: Dict obs {observation, achieved_goal, desired_goal} (numpy),
+    ``compute_reward`` delegating to the task's batched one. Successes do not terminate (fixed 50-step episodes)."""
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, env_id: str = ENV_ID):
+        import maniskill_dualher  # noqa: F401  (registers the tasks)
+        from mani_skill.utils.wrappers.gymnasium import CPUGymWrapper
+        from tasks.common import GOAL_DIM, OBS_DIM
+        self.env = CPUGymWrapper(gym.make(env_id, **ENV_KW), ignore_terminations=True)
+        self.task = self.env.unwrapped
+        self.o, self.g = OBS_DIM, GOAL_DIM
+        box = lambda n: gym.spaces.Box(-np.inf, np.inf, (n,), np.float32)  # noqa: E731
+        self.observation_space = gym.spaces.Dict(
+            {"observation": box(OBS_DIM), "achieved_goal": box(GOAL_DIM), "desired_goal": box(GOAL_DIM)})
+        self.action_space = self.env.action_space
+
+    def _dict(self, flat):
+        flat = np.asarray(flat, dtype=np.float32).reshape(-1)
+        o, g = self.o, self.g
+        return {"observation": flat[:o], "achieved_goal": flat[o:o + g], "desired_goal": flat[o + g:o + 2 * g]}
+
+    def reset(self, *, seed=None, options=None):
+        obs, info = self.env.reset(seed=seed, options=options)
+        return self._dict(obs), {}
+
+    def step(self, action):
+        obs, rew, term, trunc, info = self.env.step(action)
+        succ = bool(info.get("success", False))
+        return self._dict(obs), float(rew), bool(term), bool(trunc), {"is_success": succ}
+
+    def compute_reward(self, achieved_goal, desired_goal, info):
+        return np.asarray(self.task.compute_reward(achieved_goal, desired_goal, {}), dtype=np.float32)
+
+    def close(self):
+        self.env.close()
+
+
+class SB3:
+    def __init__(self, threads: int, seed: int = 0):
+        from stable_baselines3 import SAC, HerReplayBuffer
+        self.name = "SB3 SAC + HER"
+        self.threads = threads
+        torch.set_num_threads(threads)
+        self.env = GoalDictEnv()
+        self.model = SAC(
+            "MultiInputPolicy", self.env, replay_buffer_class=HerReplayBuffer,
+            replay_buffer_kwargs=dict(n_sampled_goal=4, goal_selection_strategy="future"),
+            buffer_size=CAPACITY, learning_starts=LEARNING_STARTS, batch_size=256, train_freq=1,
+            gradient_steps=1, policy_kwargs=dict(net_arch=[256, 256]), device="cpu", seed=seed, verbose=0)
+
+    @property
+    def steps(self) -> int:
+        return self.model.num_timesteps
+
+    def run(self, n: int) -> float:
+        torch.set_num_threads(self.threads)
+        t0 = time.perf_counter()
+        self.model.learn(total_timesteps=n, reset_num_timesteps=False, progress_bar=False)
+        return time.perf_counter() - t0
+
+    def warmup(self) -> float:
+        dt = self.run(LEARNING_STARTS)
+        s0 = self.steps
+        self.run(LEARN_WARMUP)
+        assert self.model._n_updates > 0, "SB3 made no gradient updates after warm-up"
+        return s0 / dt
+
+    def update_fns(self):
+        m = self.model
+
+        def full():  # SB3's train step: HER sample (relabel on the fly) + SAC update
+            m.train(gradient_steps=1, batch_size=256)
+
+        def sample_only():
+            m.replay_buffer.sample(256, env=m._vec_normalize_env)
+        return full, sample_only
+
+    def close(self):
+        self.model.get_env().close()
+
+
+# --------------------------------------------------------------------------- timing helpers
+def interleaved(fns: dict, iters: int, rounds: int = 10, warmup: int = 10) -> dict:
+    """Median/mean ms per call, contenders alternating in rounds (shared machine)."""
+    for f in fns.values():
+        for _ in range(warmup):
+            f()
+    times = {k: [] for k in fns}
+    per = max(1, iters // rounds)
+    for _ in range(rounds):
+        for k, f in fns.items():
+            for _ in range(per):
+                t0 = time.perf_counter()
+                f()
+                times[k].append(time.perf_counter() - t0)
+    return {k: (1e3 * float(np.median(v)), 1e3 * float(np.mean(v))) for k, v in times.items()}
+
+
+def loadavg() -> str:
+    try:
+        return " ".join(f"{x:.2f}" for x in os.getloadavg()) + f" (cores: {os.cpu_count()})"
+    except OSError:
+        return "?"
+
+
+# --------------------------------------------------------------------------- main bench
+def bench(args) -> None:
+    torch.set_num_threads(args.threads)
+    tmp = tempfile.mkdtemp(prefix="train_speed_")
+    print(f"# train_speed: {ENV_ID}, {EP_LEN}-step episodes, batch 256, 256x256, 1 update/step, "
+          f"warm-up {LEARNING_STARTS}+{LEARN_WARMUP} steps, timed {args.steps} steps each in chunks of {args.chunk}, "
+          f"torch threads {args.threads}")
+    print(f"# load average at start: {loadavg()}")
+
+    loop = [Ours("sac_her_per", v, args.threads, tmp) for v in args.variants] + [SB3(args.threads)]
+    nou = {}
+    for c in loop:
+        nou[c.name] = c.warmup()
+
+    elapsed = {c.name: 0.0 for c in loop}
+    done = {c.name: 0 for c in loop}
+    while min(done.values()) < args.steps:
+        for c in loop:
+            if done[c.name] >= args.steps:
+                continue
+            n = min(args.chunk, args.steps - done[c.name])
+            n = max(EP_LEN, int(np.ceil(n / EP_LEN)) * EP_LEN)
+            s0 = c.steps
+            elapsed[c.name] += c.run(n)
+            done[c.name] += c.steps - s0
+    sps = {k: done[k] / elapsed[k] for k in done}
+    print(f"# load average after the loop: {loadavg()}")
+
+    # per-update cost: ours for every method x variant, SB3; reuse the loop's trainers
+    upd = {}
+    upd_contenders = {}
+    for c in loop:
+        full, part = c.update_fns()
+        upd_contenders[c.name] = full
+        upd_contenders[c.name + " #part"] = part
+    extra = []
+    if not args.skip_methods:
+        for method in ("sac", "dual_buffer"):
+            for v in args.variants:
+                o = Ours(method, v, args.threads, tmp)
+                o.warmup()
+                o.close()  # the update needs no env
+                full, part = o.update_fns()
+                upd_contenders[o.name] = full
+                upd_contenders[o.name + " #part"] = part
+                extra.append(o)
+    torch.set_num_threads(args.threads)
+    upd = interleaved(upd_contenders, args.updates)
+    print(f"# load average after the update bench: {loadavg()}")
+
+    print()
+    hdr = f"{'contender':34s} {'env steps/s':>11s} {'no-update steps/s':>17s} {'update ms (med/mean)':>21s} {'part ms (med)':>14s}"
+    print(hdr)
+    print("-" * len(hdr))
+    names = [c.name for c in loop] + [o.name for o in extra]
+    for n in names:
+        s = f"{sps[n]:11.1f}" if n in sps else f"{'-':>11s}"
+        w = f"{nou[n]:17.1f}" if n in nou else f"{'-':>17s}"
+        u = upd[n]
+        p = upd[n + " #part"]
+        print(f"{n:34s} {s} {w} {u[0]:10.2f} / {u[1]:8.2f} {p[0]:14.2f}")
+    print("  update ms = one whole update of the training loop (ours: sample + SAC.update + priority write-back; "
+          "SB3: model.train(1) incl. HER sampling)")
+    print("  part ms   = ours: SAC.update alone on a fixed batch; SB3: HerReplayBuffer.sample(256) alone")
+    print(f"  timed env steps: " + ", ".join(f"{k}: {done[k]} in {elapsed[k]:.1f} s" for k in done))
+    print()
+    sb = loop[-1].name
+    for c in loop[:-1]:
+        print(f"{c.name} / SB3 env steps/s: {sps[c.name] / sps[sb]:.2f}x   "
+              f"(update cost SB3/ours: {upd[sb][0] / upd[c.name][0]:.2f}x)")
+    for c in loop:
+        c.close()
+
+
+# --------------------------------------------------------------------------- profile
+def profile(args) -> None:
+    """Profile SAC.update alone on a fixed random batch (no replay, no env)."""
+    from torch.profiler import ProfilerActivity, profile as tprofile
+    from maniskill_dualher.config import SACConfig
+    from maniskill_dualher.replay.base import Batch
+    from maniskill_dualher.sac import SAC
+
+    torch.set_num_threads(args.threads)
+    torch.manual_seed(0)
+    D, A, B = 43, 8, 256
+    for variant in args.variants:
+        agent = SAC(D, A, SACConfig(variant=variant, batch_size=B))
+        g = torch.Generator().manual_seed(1)
+        batch = Batch(obs=torch.randn(B, D, generator=g), action=torch.rand(B, A, generator=g) * 2 - 1,
+                      reward=(torch.rand(B, generator=g) < 0.1).float(), next_obs=torch.randn(B, D, generator=g),
+                      done=torch.zeros(B))
+        for _ in range(20):
+            agent.update(batch)
+        t0 = time.perf_counter()
+        for _ in range(args.updates):
+            agent.update(batch)
+        ms = 1e3 * (time.perf_counter() - t0) / args.updates
+        print(f"\n## SAC.update ({variant}): {ms:.2f} ms/update wall (threads {args.threads}, load {loadavg()})")
+        with tprofile(activities=[ProfilerActivity.CPU]) as prof:
+            for _ in range(args.updates):
+                agent.update(batch)
+        ka = prof.key_averages()
+        rows = [(e.key, e.self_cpu_time_total, e.count) for e in ka]
+        total = sum(r[1] for r in rows)
+        cats = {"matmul (fwd+bwd)": 0.0, "elementwise/reduction": 0.0, "optimizer (Adam, zero_grad, lerp)": 0.0,
+                "copies/views/autograd glue": 0.0}
+        mm = {"mm", "addmm", "bmm", "baddbmm", "matmul", "linear"}
+        glue = {"copy_", "_to_copy", "to", "view", "expand", "unsqueeze", "squeeze", "select", "slice", "as_strided",
+                "detach", "detach_", "empty", "empty_like", "empty_strided", "transpose", "t", "chunk", "split",
+                "permute", "reshape", "alias", "contiguous", "clone", "resolve_conj", "resolve_neg", "unbind",
+                "_unsafe_view", "expand_as", "fill_", "zeros", "zeros_like", "ones_like", "lift_fresh", "result_type"}
+        for k, t, _ in rows:
+            lk = k.lower()
+            op = lk.split("::")[-1] if lk.startswith("aten::") else None
+            if "adam" in lk or "zero_grad" in lk or (op or "").startswith("_foreach"):
+                cats["optimizer (Adam, zero_grad, lerp)"] += t
+            elif op in mm:
+                cats["matmul (fwd+bwd)"] += t
+            elif op is not None and op not in glue:
+                cats["elementwise/reduction"] += t
+            else:
+                cats["copies/views/autograd glue"] += t
+        per = args.updates
+        print(f"profiled self CPU time: {total / per / 1e3:.2f} ms/update (profiler overhead included)")
+        for k, v in cats.items():
+            print(f"  {k:34s} {v / per / 1e3:6.2f} ms  {100 * v / max(total, 1):5.1f}%")
+        print(ka.table(sort_by="self_cpu_time_total", row_limit=args.rows))
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--steps", type=int, default=2000, help="timed env steps per loop contender (K)")
+    p.add_argument("--chunk", type=int, default=500, help="env steps per alternating chunk")
+    p.add_argument("--threads", type=int, default=1, help="torch threads (both contenders)")
+    p.add_argument("--updates", type=int, default=300, help="updates timed per contender in the update bench")
+    p.add_argument("--variant", choices=("paper", "modern", "both"), default="both", help="our SAC variant(s)")
+    p.add_argument("--skip-methods", action="store_true", help="update bench: skip sac and dual_buffer")
+    p.add_argument("--profile", action="store_true", help="profile SAC.update alone and exit")
+    p.add_argument("--rows", type=int, default=25, help="--profile: rows of the op table")
+    args = p.parse_args(argv)
+    args.variants = ["paper", "modern"] if args.variant == "both" else [args.variant]
+    if args.profile:
+        profile(args)
+    else:
+        bench(args)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
