@@ -31,9 +31,13 @@ Reward modes (``reward_mode=``):
   reaching the part to push), and ``DENSE_REWARD_MAX = 2`` on success.
 * ``normalized_dense``: ``dense / DENSE_REWARD_MAX`` in ``[0, 1]``.
 
+``info`` (from ``evaluate()``) holds ``success`` (bool), ``goal_distance`` (m), ``achieved_goal``,
+``desired_goal`` and ``tcp_pose`` (N, 7) plus task extras; episodes terminate on success (ManiSkill).
+
 There is no render device on the development machines: scenes are built from collision shapes;
 visual shapes are added only if ``scene.can_render()`` (see :func:`build_primitive`). Rendering or
-camera observations without a render device raise one clear ``ValueError``.
+camera observations without a render device raise one clear ``ValueError``; ``render_backend``
+defaults to "none" there (ManiSkill's default "gpu" would fail inside Vulkan).
 
 Everything is batched over ``num_envs`` (torch tensors on ``self.device``), so ``physx_cuda`` with
 many environments runs the same code as the one-env-per-process CPU simulation.
