@@ -10,7 +10,7 @@ Every stage lives in its own folder ``<chain_dir>/stage<i>-<env>[-r<ratio>]-<has
 the hash covering the configs of stages 0..i and the carry flag: a killed chain
 resumes at the stage in flight, and two chains that share their first stages (the
 sampling-ratio study varies only the adaptation stage) can share those folders.
-Each stage folder also gets ``lineage.json`` (its position in the chain and its
+Each stage folder also gets ``stage.json`` (its position in the chain and its
 parent), which is how the report tells transfer stages from single-task runs.
 """
 from __future__ import annotations
@@ -31,7 +31,7 @@ TASKS = ("ReachTarget-v1", "CloseBox-v1", "CloseMicrowave-v1")
 TRANSFER_ORDER = TASKS                  # paper: ReachTarget -> CloseBox -> CloseMicrowave
 HER_K_SINGLE = 4                        # paper 4.2.1
 HER_K_MULTITASK = 8                     # paper 4.2.2: "k ... was increased from 4 to 8"
-LINEAGE_FILE = "lineage.json"
+LINEAGE_FILE = "stage.json"  # (train.py writes lineage.json: where the networks came from)
 
 
 # --------------------------------------------------------------------------- small shared helpers

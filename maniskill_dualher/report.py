@@ -7,7 +7,7 @@ resumed sweep gives byte-identical tables (no wall time in them; bootstrap CIs a
 seeded). Only finished runs (done.json) count. If the folder holds a sweep.json, only
 the runs that sweep lists are used (a folder can keep older runs after ``--force``).
 
-A run folder with lineage.json is a stage of a transfer chain (see protocol.py); its
+A run folder with stage.json is a stage of a transfer chain (see protocol.py); its
 last stage is the *adaptation* stage the paper's Tables 4 and 5 count; a folder without
 one is a single-task run (paper Fig. 4).
 """
@@ -428,13 +428,15 @@ def summary_md(folder: Path, runs: List[Run], unfinished: List[str], tables: Dic
              f"Adaptation stage: {', '.join(map(str, adapt_steps)) or 'none'} env steps "
              f"(paper: {PAPER_ADAPT_BUDGET}).")
     if adapt_steps:
-        s.append(f"Our adaptation budget is {adapt_steps[0] / PAPER_ADAPT_STEPS:.2%} of the paper's, and our tasks "
+        s.append(f"Our adaptation budget is {100 * adapt_steps[0] / PAPER_ADAPT_STEPS:.2g}% of the paper's, and our tasks "
                  "are ManiSkill3 re-creations of the RLBench ones, so absolute counts are not comparable: "
                  "compare directions and ratios.")
     s += ["", "Tables are recomputed from run folders (config.json + metrics.csv); mean, sample std and a 95% "
           "percentile bootstrap CI (10,000 seeded resamples) over seeds. 'successful training episodes' = the "
           "paper's 'successful attempts': training episodes that ended in success, counted over the run.", ""]
-    s += ["## Findings (computed from the numbers below)", ""] + findings(tables) + [""]
+    s += ["## Findings (computed from the numbers below)", "",
+          f"'reproduced' needs the paper's direction, at least {MIN_SEEDS_FOR_CI} seeds per side and separate 95% CIs.",
+          ""] + findings(tables) + [""]
     for name, title in (("table5_multitask.csv", "Table 5: SAC+HER+PER vs dual buffer, adaptation stage"),
                         ("table4_sampling_ratio.csv", "Table 4: dual buffer sampling ratio, adaptation stage"),
                         ("single_task.csv", "Single-task learning (paper Fig. 4 gives curves only)")):

@@ -61,9 +61,9 @@ PAPER_EPOCH_STEPS = 200 * 150   # paper: an epoch is 200 episodes of 150 steps (
 PRESETS: Dict[str, Budget] = {
     # CI: the whole pipeline (every experiment, table and plot) in about a minute. Learns nothing.
     "smoke": Budget(
-        single_steps=_per_task(300, 300, 300), stage_steps=_per_task(200, 200, 200),
-        adaptation_steps=_per_task(200, 200, 200), seeds=(0, 1),
-        eval_every=100, eval_episodes=2, checkpoint_every=100, max_episode_steps=50,
+        single_steps=_per_task(200, 200, 200), stage_steps=_per_task(150, 150, 150),
+        adaptation_steps=_per_task(150, 150, 150), seeds=(0, 1),
+        eval_every=100, eval_episodes=2, checkpoint_every=50, max_episode_steps=50,
         hidden=(32, 32), batch_size=32, random_steps=100, learning_starts=100, capacity=10_000),
     # Default: the whole grid, every table and plot, on a 2-core CPU in <= 90 minutes.
     "quick": Budget(
@@ -175,19 +175,16 @@ def _split(text: str) -> List[str]:
 def parse_seeds(text: str) -> Tuple[int, ...]:
     """'3' -> (0, 1, 2) (a count); '0,4,7' or '7,' -> those seeds."""
     try:
-        if "," not in text:
-            n = int(text)
-            if n < 0:
-                raise ConfigError(f"seed must be >= 0, got {n}")
-            if n == 0:
-                raise ConfigError("--seeds count must be >= 1, got 0")
-            return tuple(range(n))
         seeds = tuple(int(s) for s in _split(text))
     except ValueError:
         raise ConfigError(f"--seeds must be a count (3) or a list (0,1,2), got {text!r}") from None
     bad = [s for s in seeds if s < 0]
     if bad:
         raise ConfigError(f"seed must be >= 0, got {bad[0]}")
+    if "," not in text and seeds:  # a count
+        if seeds[0] == 0:
+            raise ConfigError("--seeds count must be >= 1, got 0")
+        return tuple(range(seeds[0]))
     if not seeds or len(set(seeds)) != len(seeds):
         raise ConfigError(f"--seeds must list distinct seeds, got {text!r}")
     return seeds

@@ -1,0 +1,345 @@
+"""The experiment pipeline end to end with real tiny runs: sweep (local pool and Ray), transfer
+protocol, kill-and-resume, and bad input. The smoke grid (34 runs) is run once per backend and
+once killed-and-resumed; the three must give byte-identical tables."""
+from __future__ import annotations
+
+import csv
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from maniskill_dualher import protocol, sweep
+from maniskill_dualher.config import ReplayConfig, RunConfig, SACConfig
+
+REPO = Path(__file__).resolve().parents[1]
+TABLES = ["table4_sampling_ratio.csv", "table5_multitask.csv", "single_task.csv"]
+OUTPUTS = TABLES + ["hyperparameters.csv", "fig4_single_task.png", "fig5_multitask.png", "summary.md"]
+METRIC_KEYS = {"successful_train_episodes": "train_successes", "final_eval_success_rate": "eval_success_rate",
+               "final_eval_return": "eval_return"}
+
+
+def _env():
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(REPO), env.get("PYTHONPATH")]))
+    env.setdefault("OMP_NUM_THREADS", "1")
+    return env
+
+
+def _cli(*args, timeout=600, **kw):
+    return subprocess.run([sys.executable, "-m", "maniskill_dualher.sweep", *args], cwd=REPO, env=_env(),
+                          capture_output=True, text=True, timeout=timeout, **kw)
+
+
+@pytest.fixture(scope="module")
+def smoke_local(tmp_path_factory):
+    """The smoke preset, uninterrupted, local pool: the reference every other sweep is compared to."""
+    out = tmp_path_factory.mktemp("smoke") / "local"
+    t0 = time.perf_counter()
+    assert sweep.main(["--preset", "smoke", "--out", str(out), "--workers", "2"]) == 0
+    print(f"smoke preset, local backend: {time.perf_counter() - t0:.1f} s wall")
+    return out
+
+
+# ----------------------------------------------------------------------------- recomputation
+def _recompute(out: Path) -> dict:
+    """Independently of report.py: group finished runs, aggregate the final metrics rows."""
+    runs = json.loads((out / "sweep.json").read_text())["runs"]
+    groups = defaultdict(list)
+    for rel in runs:
+        d = out / rel
+        cfg = json.loads((d / "config.json").read_text())
+        with open(d / "metrics.csv", newline="") as f:
+            last = list(csv.DictReader(f))[-1]
+        stage = json.loads((d / "stage.json").read_text()) if (d / "stage.json").exists() else None
+        if stage is None:
+            kind = "single"
+        elif stage["adaptation"]:
+            kind = "adaptation"
+        else:
+            continue
+        ratio = "/".join(f"{x:g}" for x in cfg["replay"]["ratio"]) if cfg["method"] == "dual_buffer" else ""
+        groups[(kind, cfg["env_id"], cfg["method"], ratio)].append((cfg["seed"], last, cfg["total_steps"]))
+    return groups
+
+
+def _check_row(row: dict, members: list) -> None:
+    members = sorted(members, key=lambda m: m[0])
+    vals = np.array([float(m[1][METRIC_KEYS[row["metric"]]]) for m in members])
+    assert int(row["n_seeds"]) == len(vals)
+    assert row["seeds"] == " ".join(str(m[0]) for m in members)
+    assert int(row["env_steps"]) == members[0][2]
+    assert float(row["mean"]) == pytest.approx(vals.mean(), rel=1e-5, abs=1e-9)
+    if len(vals) > 1:
+        assert float(row["std"]) == pytest.approx(vals.std(ddof=1), rel=1e-5, abs=1e-9)
+    boot = vals[np.random.default_rng(0).integers(0, len(vals), (10_000, len(vals)))].mean(1)
+    lo, hi = np.percentile(boot, [2.5, 97.5])
+    assert float(row["ci95_low"]) == pytest.approx(lo, rel=1e-5, abs=1e-9)
+    assert float(row["ci95_high"]) == pytest.approx(hi, rel=1e-5, abs=1e-9)
+
+
+def assert_tables_match_runs(out: Path) -> None:
+    groups = _recompute(out)
+    kinds = {"table4_sampling_ratio.csv": "adaptation", "table5_multitask.csv": "adaptation",
+             "single_task.csv": "single"}
+    for name, kind in kinds.items():
+        with open(out / name, newline="") as f:
+            rows = list(csv.DictReader(f))
+        assert rows, name
+        for row in rows:
+            _check_row(row, groups[(kind, row["task"], row["method"], row["ratio"])])
+
+
+def _tables_bytes(out: Path) -> dict:
+    return {n: (out / n).read_bytes() for n in TABLES + ["hyperparameters.csv", "summary.md"]}
+
+
+# ----------------------------------------------------------------------------- end to end
+def test_smoke_local_end_to_end(smoke_local):
+    out = smoke_local
+    for name in OUTPUTS:
+        assert (out / name).is_file() and (out / name).stat().st_size > 0, name
+    assert (out / "fig4_single_task.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    d = json.loads((out / "sweep.json").read_text())
+    # 3 tasks x 3 methods x 2 seeds single; 2 methods x 3 stages x 2 seeds transfer; + 2 ratios x 2 seeds
+    assert len(d["runs"]) == 18 + 12 + 4
+    assert all(protocol.is_done(out / r) for r in d["runs"])
+    # the ratio study shares the source stages with transfer's dual_buffer chain: one stage0 per seed
+    assert len(list((out / "runs/transfer/dual_buffer-s0").glob("stage0-*"))) == 1
+    assert len(list((out / "runs/transfer/dual_buffer-s0").glob("stage2-*"))) == 3
+    assert_tables_match_runs(out)
+    with open(out / "table4_sampling_ratio.csv", newline="") as f:
+        t4 = {r["ratio"]: r for r in csv.DictReader(f)}
+    assert {k: v["paper"] for k, v in t4.items()} == {"0.5/0.5": "154", "0.6/0.4": "250", "0.7/0.3": "<75"}
+    with open(out / "table5_multitask.csv", newline="") as f:
+        t5 = [r for r in csv.DictReader(f) if r["metric"] == "successful_train_episodes"]
+    assert {(r["method"], r["paper"]) for r in t5} == {("sac_her_per", "<45"), ("dual_buffer", "250")}
+    for name in TABLES:  # wall time must stay out of tables (else resumed sweeps differ)
+        assert "wall" not in (out / name).read_text()
+    summary = (out / "summary.md").read_text()
+    assert "Findings" in summary and "154" in summary and "seeds [0, 1]" in summary
+    hp = (out / "hyperparameters.csv").read_text()
+    assert "HER goals per transition k,\"4 single-task, 8 multi-task\",4,8" in hp
+
+
+def test_report_numbers_come_from_metrics(smoke_local, tmp_path):
+    """Edit one adaptation run's metrics.csv in a copy: the rebuilt tables must follow it."""
+    import shutil
+
+    from maniskill_dualher import report
+    out = tmp_path / "copy"
+    shutil.copytree(smoke_local, out)
+    stage2 = sorted((out / "runs/transfer/dual_buffer-s1").glob("stage2-CloseMicrowave-v1-r0.5-0.5-*"))[0]
+    with open(stage2 / "metrics.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    before = {r["ratio"]: r for r in csv.DictReader(open(out / "table4_sampling_ratio.csv"))}
+    rows[-1]["train_successes"] = str(float(rows[-1]["train_successes"]) + 6)
+    with open(stage2 / "metrics.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    report.build_report(out)
+    after = {r["ratio"]: r for r in csv.DictReader(open(out / "table4_sampling_ratio.csv"))}
+    assert float(after["0.5/0.5"]["mean"]) == pytest.approx(float(before["0.5/0.5"]["mean"]) + 3)
+    assert after["0.6/0.4"] == before["0.6/0.4"]
+    assert_tables_match_runs(out)
+
+
+def test_smoke_ray_backend_same_tables(smoke_local, tmp_path):
+    pytest.importorskip("ray")
+    out = tmp_path / "ray"
+    t0 = time.perf_counter()
+    assert sweep.main(["--preset", "smoke", "--out", str(out), "--backend", "ray", "--workers", "2"]) == 0
+    print(f"smoke preset, ray backend: {time.perf_counter() - t0:.1f} s wall")
+    for name in OUTPUTS:
+        assert (out / name).is_file(), name
+    assert _tables_bytes(out) == _tables_bytes(smoke_local)
+    assert_tables_match_runs(out)
+
+
+def _children(pid: int) -> list:
+    kids = []
+    for p in Path("/proc").iterdir():
+        if p.name.isdigit():
+            try:
+                if int((p / "stat").read_text().rsplit(")", 1)[1].split()[1]) == pid:
+                    kids.append(int(p.name))
+            except (OSError, IndexError, ValueError):
+                pass
+    return kids
+
+
+def _alive(pid: int) -> bool:
+    try:
+        return (Path("/proc") / str(pid) / "stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+# a sub-grid of smoke (same budgets, so the same run folders): 2 single-task runs + a 3-stage chain
+SUBGRID = ["--preset", "smoke", "--experiments", "single,transfer", "--tasks", "CloseBox-v1",
+           "--methods", "sac,dual_buffer", "--seeds", "1"]
+
+
+@pytest.mark.skipif(not Path("/proc").is_dir(), reason="needs /proc to find the sweep's workers")
+def test_sigkill_midway_then_resume_gives_identical_tables(smoke_local, tmp_path):
+    import shutil
+    # reference: the sub-grid's tables from the uninterrupted smoke runs (all done: the sweep only reports)
+    ref = tmp_path / "ref"
+    shutil.copytree(smoke_local, ref)
+    assert sweep.main([*SUBGRID, "--out", str(ref), "--force"]) == 0
+    assert len(json.loads((ref / "sweep.json").read_text())["runs"]) == 5
+
+    out = tmp_path / "killed"
+    args = [*SUBGRID, "--out", str(out)]
+    log = open(tmp_path / "first.log", "w")
+    p = subprocess.Popen([sys.executable, "-m", "maniskill_dualher.sweep", *args], cwd=REPO, env=_env(),
+                         stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+    try:
+        deadline = time.time() + 300
+        while time.time() < deadline and p.poll() is None:
+            if [c for c in out.glob("runs/**/checkpoint.pt") if not protocol.is_done(c.parent)]:
+                break
+            time.sleep(0.02)
+        assert p.poll() is None, "the sweep finished before it could be killed"
+        workers = _children(p.pid)
+        p.send_signal(signal.SIGKILL)
+        p.wait()
+        interrupted = [c.parent for c in out.glob("runs/**/checkpoint.pt") if not protocol.is_done(c.parent)]
+        assert interrupted, "no run was mid-way when the sweep was killed"
+        t_end = time.time() + 15
+        while any(_alive(w) for w in workers) and time.time() < t_end:
+            time.sleep(0.1)
+        assert not [w for w in workers if _alive(w)], "pool workers outlived the killed sweep"
+    finally:
+        try:
+            os.killpg(p.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+        log.close()
+    assert not (out / "summary.md").exists()
+    r = _cli(*args)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert all(protocol.is_done(d) for d in interrupted)
+    assert _tables_bytes(out) == _tables_bytes(ref)
+
+
+# ----------------------------------------------------------------------------- transfer protocol
+def _tiny(env_id, method="dual_buffer", steps=150, seed=0):
+    return RunConfig(env_id=env_id, method=method, seed=seed, total_steps=steps, max_episode_steps=50,
+                     eval_every=150, eval_episodes=1, checkpoint_every=150,
+                     sac=SACConfig(random_steps=100, learning_starts=100, batch_size=32, hidden=(32, 32)),
+                     replay=ReplayConfig(capacity=10_000))
+
+
+def test_make_stages_follows_the_paper():
+    base = _tiny("ReachTarget-v1")
+    st = protocol.make_stages(base, protocol.TRANSFER_ORDER, [300, 200, 120], adaptation_ratio=(0.7, 0.3))
+    assert [s.env_id for s in st] == list(protocol.TRANSFER_ORDER)
+    assert [s.total_steps for s in st] == [300, 200, 120]
+    assert all(s.replay.her_k == 8 for s in st) and base.replay.her_k == 4
+    assert [s.replay.ratio for s in st] == [(0.6, 0.4), (0.6, 0.4), (0.7, 0.3)]
+    # a stage's folder identity includes its predecessors' configs and the carry flag
+    st2 = protocol.make_stages(base, protocol.TRANSFER_ORDER, [301, 200, 120])
+    assert protocol.stage_dirname(st, 1, True) != protocol.stage_dirname(st2, 1, True)
+    assert protocol.stage_dirname(st, 0, True) != protocol.stage_dirname(st, 0, False)
+    mixed = [st[0], _tiny("CloseBox-v1", method="sac")]
+    with pytest.raises(protocol.ConfigError, match="one method"):
+        protocol.validate_chain(mixed)
+
+
+def test_run_transfer_chains_networks_and_replay(tmp_path):
+    stages = protocol.make_stages(_tiny("ReachTarget-v1"), ["ReachTarget-v1", "CloseMicrowave-v1"], [150, 150])
+    rows = protocol.run_transfer(stages, tmp_path / "chain", carry_replay=True, show_progress=False)
+    d0, d1 = protocol.transfer_chain_dirs(tmp_path / "chain", stages, True)
+    assert len(rows) == 2 and all(protocol.is_done(d) for d in (d0, d1))
+    info = json.loads((d1 / "stage.json").read_text())
+    assert info["stage"] == 1 and info["adaptation"] and info["parent"] == d0.name
+    assert json.loads((d1 / "lineage.json").read_text())["init_from"] == str(d0)
+    # carried replay: stage 1 holds stage 0's transitions too, so its buffer is larger than a fresh one
+    from maniskill_dualher.train import run_training
+    fresh = run_training(stages[1], tmp_path / "fresh", init_from=d0, carry_replay=False, show_progress=False)
+    assert rows[1]["replay_size"] > fresh["replay_size"] > 0
+    # finished chain: a second call trains nothing and returns the same rows
+    assert protocol.run_transfer(stages, tmp_path / "chain", show_progress=False) == rows
+
+
+# ----------------------------------------------------------------------------- bad input
+@pytest.mark.parametrize("args, expect", [
+    (["--preset", "nope"], "invalid choice"),
+    (["--tasks", "PickCube-v1"], "unknown task"),
+    (["--task-order", "ReachTarget-v1,Nope-v0"], "unknown task"),
+    (["--methods", "ddpg"], "unknown method"),
+    (["--experiments", "single,bogus"], "unknown experiment"),
+    (["--ratios", "0.6/0.5"], "summing to 1"),
+    (["--ratios", "1.5/-0.5"], "non-negative"),
+    (["--ratios", "0.5/0.5,half"], "ratio"),
+    (["--seeds", "-1"], "seed must be >= 0"),
+    (["--seeds=0,-2"], "seed must be >= 0"),
+    (["--seeds", "a,b"], "--seeds"),
+    (["--budget", "eval_every=0"], "eval_every"),
+    (["--budget", "nosuch=1"], "unknown budget key"),
+    (["--methods", "sac", "--experiments", "ratios"], "needs method dual_buffer"),
+    (["--workers", "0"], "--workers"),
+    (["--ray-address", "auto"], "--backend ray"),
+])
+def test_bad_input_one_line_exit_2_nothing_written(tmp_path, capsys, args, expect):
+    out = tmp_path / "o"
+    with pytest.raises(SystemExit) as e:
+        sys.exit(sweep.main(["--preset", "smoke", "--out", str(out), *args]))
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error:") and expect in err[0], err
+    assert not out.exists()
+
+
+def _snapshot(folder: Path) -> dict:
+    return {str(p): (p.stat().st_mtime_ns, p.read_bytes() if p.is_file() else b"") for p in folder.rglob("*")}
+
+
+def test_out_folder_of_another_sweep_is_refused(tmp_path, capsys):
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "sweep.json").write_text(json.dumps({"preset": "quick", "runs": []}))
+    before = _snapshot(out)
+    assert sweep.main(["--preset", "smoke", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "different sweep" in err[0] and "--force" in err[0]
+    assert _snapshot(out) == before
+    # foreign run folders without a sweep.json are refused too
+    (out / "sweep.json").unlink()
+    (out / "runs/single/x-1234").mkdir(parents=True)
+    (out / "runs/single/x-1234/config.json").write_text("{}")
+    before = _snapshot(out)
+    assert sweep.main(["--preset", "smoke", "--out", str(out)]) == 2
+    assert "different config" in capsys.readouterr().err
+    assert _snapshot(out) == before
+
+
+def test_cli_bad_input_exit_code_and_single_error_line(tmp_path):
+    out = tmp_path / "o"
+    r = _cli("--preset", "smoke", "--ratios", "0.7/0.7", "--out", str(out), timeout=120)
+    assert r.returncode == 2
+    # library import warnings (SAPIEN's libvulkan notice) are not ours; our answer is one line
+    ours = [ln for ln in r.stderr.splitlines() if ln.strip() and "Warning" not in ln and not ln.startswith("  warn(")]
+    assert ours == ["error: ratio must be two non-negative numbers summing to 1, got '0.7/0.7'"], r.stderr
+    assert not out.exists()
+
+
+def test_seeds_budget_and_dry_run(tmp_path, capsys):
+    assert sweep.parse_seeds("3") == (0, 1, 2)
+    assert sweep.parse_seeds("4,7") == (4, 7) and sweep.parse_seeds("7,") == (7,)
+    out = tmp_path / "o"
+    assert sweep.main(["--preset", "smoke", "--out", str(out), "--experiments", "ratios", "--seeds", "1",
+                       "--ratios", "0.5/0.5", "--budget", "single_steps.CloseBox-v1=999", "--dry-run"]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert lines[-1] == "3 runs; nothing written (--dry-run)"      # stage0, stage1, adaptation at 0.5/0.5
+    assert sum("stage2-CloseMicrowave-v1-r0.5-0.5" in ln for ln in lines) == 1
+    assert not out.exists()
