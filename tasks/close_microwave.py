@@ -64,6 +64,7 @@ class CloseMicrowaveEnv(PandaGoalEnv):
     BODY_WIDTH = 0.30  # y
     BODY_HEIGHT = 0.18  # z
     WALL = 0.01
+    BODY_LIFT = 0.001  # above the table: a body resting on the table adds contact pairs to every step
     # Door.
     DOOR_THICKNESS = 0.015
     DOOR_GAP = 0.004  # between the closed door's inner face and the shell's front edges
@@ -152,6 +153,14 @@ class CloseMicrowaveEnv(PandaGoalEnv):
         self._free_edge_local = point([0.0, L, hd / 2])
         self._push_local = point([0.0, self.PUSH_RADIUS, hd / 2])
         self._closed_free_edge_body = point([-hx - self.DOOR_GAP - th, -hy + L, self.DOOR_LIFT + hd / 2])
+        # The body only moves in _initialize_episode / set_state_dict: cache the desired goal (N, 3) so it
+        # need not be recomputed from the body pose every step. Replaced, never written in place, so goal
+        # tensors handed out earlier (info) keep their values.
+        self._desired_cache = torch.zeros((self.num_envs, 3), device=self.device)
+
+    def _refresh_goal_cache(self):
+        """Recompute the cached desired goal from the body pose (call after moving the body by hand)."""
+        self._desired_cache = transform_points(self.microwave.pose.raw_pose, self._closed_free_edge_body)
 
     def _initialize_episode(self, env_idx: torch.Tensor, options: dict):
         super()._initialize_episode(env_idx, options)
@@ -162,7 +171,7 @@ class CloseMicrowaveEnv(PandaGoalEnv):
                 lo, hi = lo_hi
                 return lo + (hi - lo) * torch.rand(n)
 
-            p = torch.zeros((b, 3))
+            p = torch.full((b, 3), self.BODY_LIFT)
             p[:, 0] = uniform(self.CENTER_X_RANGE, b)
             p[:, 1] = uniform(self.CENTER_Y_RANGE, b)
             yaw = uniform(self.YAW_RANGE, b)
@@ -170,28 +179,36 @@ class CloseMicrowaveEnv(PandaGoalEnv):
             q[:, 0] = torch.cos(yaw / 2)
             q[:, 3] = torch.sin(yaw / 2)
             self.microwave.set_pose(Pose.create_from_pq(p=p, q=q))
+            cache = self._desired_cache.clone()
+            cache[env_idx] = transform_points(torch.cat([p, q], dim=-1), self._closed_free_edge_body)
+            self._desired_cache = cache
             angle = uniform(self.INIT_ANGLE_RANGE, b)
             self.microwave.set_qpos(angle[:, None])
             self.microwave.set_qvel(torch.zeros((b, 1)))
 
     # ------------------------------------------------------------------ goals and evaluation
     def _achieved_goal(self) -> torch.Tensor:
-        return transform_points(self.door.pose.raw_pose, self._free_edge_local)
+        # One door-pose read per step (evaluate() runs first), shared with the observation and the reward.
+        self._door_pose_at_eval = self.door.pose.raw_pose
+        return transform_points(self._door_pose_at_eval, self._free_edge_local)
+
+    def set_state_dict(self, state: dict, env_idx: torch.Tensor = None):
+        super().set_state_dict(state, env_idx)
+        self._refresh_goal_cache()
 
     def _desired_goal(self) -> torch.Tensor:
-        # Read from the body pose every step (not cached at reset) so set_state / pose overrides stay exact.
-        return transform_points(self.microwave.pose.raw_pose, self._closed_free_edge_body)
+        return self._desired_cache
 
     def push_point(self) -> torch.Tensor:
-        """(N, 3) middle of the door's outer face, ``PUSH_RADIUS`` from the hinge, world frame."""
-        return transform_points(self.door.pose.raw_pose, self._push_local)
+        """(N, 3) middle of the door's outer face, ``PUSH_RADIUS`` from the hinge, world frame (as of evaluate())."""
+        return transform_points(self._door_pose_at_eval, self._push_local)
 
     def _evaluate_extra(self) -> dict:
         return dict(door_angle=self.microwave.qpos[:, 0].clone())
 
     # ------------------------------------------------------------------ observations
     def _object_pose(self) -> torch.Tensor:
-        return self.door.pose.raw_pose
+        return self._door_pose_at_eval  # read in this step's evaluate(), which precedes every observation
 
     def _joint_state(self) -> torch.Tensor:
         return torch.cat([self.microwave.qpos[:, :1], self.microwave.qvel[:, :1]], dim=-1)

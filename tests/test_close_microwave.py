@@ -32,9 +32,10 @@ def set_state(env, angle=None, center=None, yaw=None):
     base = env.unwrapped
     if center is not None:
         yaw = 0.0 if yaw is None else yaw
-        p = torch.tensor([[center[0], center[1], 0.0]], dtype=torch.float32)
+        p = torch.tensor([[center[0], center[1], base.BODY_LIFT]], dtype=torch.float32)
         q = torch.tensor([[np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)]], dtype=torch.float32)
         base.microwave.set_pose(Pose.create_from_pq(p=p, q=q))
+        base._refresh_goal_cache()
     if angle is not None:
         base.microwave.set_qpos(torch.tensor([[angle]], dtype=torch.float32))
         base.microwave.set_qvel(torch.zeros((1, 1)))
@@ -109,7 +110,10 @@ def test_solver_push_closes_door_by_contact(env):
     angles = np.array(angles)
     assert bool(info["success"][0]) and angles[-1] < CloseMicrowaveEnv.SUCCESS_ANGLE
     first_touch = touching.index(True)
-    assert np.all(np.abs(angles[:first_touch + 1] - HI_ANGLE) < 1e-3), "door moved before the robot touched it"
+    # Contacts are sampled at the end of each control step (5 sim steps); a first impact can end within
+    # the step before, so allow the door to start moving one step before the first sampled contact.
+    assert np.all(np.abs(angles[:first_touch] - HI_ANGLE) < 1e-3), "door moved before the robot touched it"
+    assert sum(touching) >= 3, "the door is closed by sustained pushing, not one knock"
     assert np.all(np.diff(angles) < 1e-3), "the push must only close the door"
     assert angles[0] - angles[-1] > 1.0
 
@@ -136,7 +140,7 @@ def test_randomization_in_documented_ranges(env):
         p, q = base.microwave.pose.p[0], base.microwave.pose.q[0]
         xs.append(float(p[0]))
         ys.append(float(p[1]))
-        assert float(p[2]) == pytest.approx(0.0, abs=1e-6), "the microwave stands on the table"
+        assert float(p[2]) == pytest.approx(base.BODY_LIFT, abs=1e-6), "the microwave stands on the table"
         assert abs(float(q[1])) < 1e-6 and abs(float(q[2])) < 1e-6, "the microwave only turns about z"
         yaws.append(2 * float(torch.atan2(q[3], q[0])))
         angles.append(door_angle(env))
@@ -224,3 +228,19 @@ def test_goal_box_holds_every_corner_pose(env):
         set_state(env, angle=0.8, center=(x, y), yaw=yaw)
         dg = base.evaluate()["desired_goal"][0]
         assert torch.all(dg >= lo) and torch.all(dg <= hi), f"desired goal {dg} outside the goal box"
+
+
+def test_cached_desired_goal_follows_the_body(env):
+    """The desired goal is cached at reset; it must equal the closed free edge of the body where it stands."""
+    from tasks.common import transform_points
+
+    base = env.unwrapped
+    for seed in (9, 10):
+        obs, info = env.reset(seed=seed)
+        first = info["desired_goal"].clone()
+        for _ in range(5):
+            obs, _, _, _, info = env.step(env.action_space.sample())
+        assert torch.equal(info["desired_goal"], first), "the desired goal is constant within an episode"
+        assert torch.equal(split_goal_obs(obs)[2], first)
+        body = transform_points(base.microwave.pose.raw_pose, base._closed_free_edge_body)
+        torch.testing.assert_close(first, body, atol=1e-6, rtol=0)
