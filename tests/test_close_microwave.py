@@ -86,6 +86,18 @@ def test_idle_door_holds_its_angle(env, angle):
     assert not bool(info["success"][0])
 
 
+def test_door_does_not_bounce_off_the_closed_limit(env):
+    """Slammed shut at 3 rad/s from 0.02 rad, the door stops at the limit and stays there."""
+    env.reset(seed=1)
+    set_state(env, angle=0.02)
+    env.unwrapped.microwave.set_qvel(torch.tensor([[-3.0]]))
+    angles = []
+    for _ in range(10):
+        env.step(torch.zeros(env.action_space.shape))
+        angles.append(door_angle(env))
+    assert max(angles) < 1e-3 and min(angles) > -1e-3
+
+
 def test_reset_starts_clear_outside_the_door(env):
     """At every reset the TCP is outside the door's swing (never between door and body); nothing touches."""
     for seed in range(20):
