@@ -159,10 +159,6 @@ class CloseMicrowaveEnv(PandaGoalEnv):
         # tensors handed out earlier (info) keep their values.
         self._desired_cache = torch.zeros((self.num_envs, 3), device=self.device)
 
-    def _refresh_goal_cache(self):
-        """Recompute the cached desired goal from the body pose (call after moving the body by hand)."""
-        self._desired_cache = transform_points(self.microwave.pose.raw_pose, self._closed_free_edge_body)
-
     def _initialize_episode(self, env_idx: torch.Tensor, options: dict):
         super()._initialize_episode(env_idx, options)
         with torch.device(self.device):
@@ -187,15 +183,19 @@ class CloseMicrowaveEnv(PandaGoalEnv):
             self.microwave.set_qpos(angle[:, None])
             self.microwave.set_qvel(torch.zeros((b, 1)))
 
+    def set_state_dict(self, state: dict, env_idx: torch.Tensor = None):
+        super().set_state_dict(state, env_idx)
+        self._refresh_goal_cache()
+
+    def _refresh_goal_cache(self):
+        """Recompute the cached desired goal from the body pose (call after moving the body by hand)."""
+        self._desired_cache = transform_points(self.microwave.pose.raw_pose, self._closed_free_edge_body)
+
     # ------------------------------------------------------------------ goals and evaluation
     def _achieved_goal(self) -> torch.Tensor:
         # One door-pose read per step (evaluate() runs first), shared with the observation and the reward.
         self._door_pose_at_eval = self.door.pose.raw_pose
         return transform_points(self._door_pose_at_eval, self._free_edge_local)
-
-    def set_state_dict(self, state: dict, env_idx: torch.Tensor = None):
-        super().set_state_dict(state, env_idx)
-        self._refresh_goal_cache()
 
     def _desired_goal(self) -> torch.Tensor:
         return self._desired_cache
@@ -209,7 +209,9 @@ class CloseMicrowaveEnv(PandaGoalEnv):
 
     # ------------------------------------------------------------------ observations
     def _object_pose(self) -> torch.Tensor:
-        return self._door_pose_at_eval  # read in this step's evaluate(), which precedes every observation
+        # The door pose read in this step's evaluate(), which runs before every observation.
+        pose = getattr(self, "_door_pose_at_eval", None)
+        return self.door.pose.raw_pose if pose is None else pose
 
     def _joint_state(self) -> torch.Tensor:
         return torch.cat([self.microwave.qpos[:, :1], self.microwave.qvel[:, :1]], dim=-1)
