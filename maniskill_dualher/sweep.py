@@ -50,6 +50,8 @@ class Budget:
     learning_starts: int
     capacity: int                       # replay capacity (paper: 1e7)
     updates_per_step: float = 1.0
+    sim_backend: str = "physx_cpu"      # "physx_cuda" + num_envs > 1 for GPU simulation (paper preset on a GPU)
+    num_envs: int = 1                   # parallel envs per run (CPU simulation: 1)
 
 
 def _per_task(reach: int, box: int, microwave: int) -> Dict[str, int]:
@@ -110,6 +112,7 @@ def base_config(b: Budget, method: str, seed: int) -> RunConfig:
     return RunConfig(
         method=method, seed=seed, max_episode_steps=b.max_episode_steps, eval_every=b.eval_every,
         eval_episodes=b.eval_episodes, checkpoint_every=b.checkpoint_every, torch_threads=1,
+        sim_backend=b.sim_backend, num_envs=b.num_envs,
         sac=SACConfig(hidden=tuple(b.hidden), batch_size=b.batch_size, random_steps=b.random_steps,
                       learning_starts=b.learning_starts, updates_per_step=b.updates_per_step),
         replay=ReplayConfig(capacity=b.capacity, her_k=protocol.HER_K_SINGLE))
@@ -222,6 +225,8 @@ def _apply_budget_override(b: Budget, item: str) -> None:
             setattr(b, name, None if val.lower() == "none" else int(val))
         elif name == "updates_per_step":
             setattr(b, name, float(val))
+        elif name == "sim_backend":
+            setattr(b, name, val)
         else:
             setattr(b, name, int(float(val)))
     except ValueError:
@@ -240,6 +245,11 @@ def _check_budget(b: Budget) -> None:
         raise ConfigError(f"budget hidden must be positive layer sizes, got {b.hidden}")
     if b.max_episode_steps is not None and b.max_episode_steps <= 0:
         raise ConfigError(f"budget max_episode_steps must be > 0, got {b.max_episode_steps}")
+    if b.sim_backend not in ("physx_cpu", "physx_cuda") or b.num_envs < 1:
+        raise ConfigError(f"budget sim_backend must be physx_cpu or physx_cuda and num_envs >= 1, "
+                          f"got {b.sim_backend!r}, {b.num_envs}")
+    if b.sim_backend == "physx_cpu" and b.num_envs != 1:
+        raise ConfigError(f"budget num_envs={b.num_envs} needs sim_backend=physx_cuda (CPU simulation runs one env)")
     if min(b.random_steps, b.learning_starts) < 0 or b.updates_per_step <= 0:
         raise ConfigError("budget random_steps/learning_starts must be >= 0 and updates_per_step > 0")
 
@@ -536,7 +546,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         for n in nodes:
             state = "done" if protocol.is_done(out / n.rel) else "todo"
             print(f"{state}  {n.rel}")
-        print(f"{len(nodes)} runs; nothing written (--dry-run)")
+        total = sum(n.cfg.total_steps for n in nodes if not protocol.is_done(out / n.rel))
+        print(f"{len(nodes)} runs; {total} env steps to go; nothing written (--dry-run)")
         return 0
 
     workers = a.workers or (None if a.ray_address else min(2, os.cpu_count() or 1))

@@ -288,6 +288,7 @@ def test_run_transfer_chains_networks_and_replay(tmp_path):
     (["--budget", "nosuch=1"], "unknown budget key"),
     (["--methods", "sac", "--experiments", "ratios"], "needs method dual_buffer"),
     (["--workers", "0"], "--workers"),
+    (["--budget", "num_envs=4"], "physx_cuda"),
     (["--ray-address", "auto"], "--backend ray"),
 ])
 def test_bad_input_one_line_exit_2_nothing_written(tmp_path, capsys, args, expect):
@@ -340,6 +341,6 @@ def test_seeds_budget_and_dry_run(tmp_path, capsys):
     assert sweep.main(["--preset", "smoke", "--out", str(out), "--experiments", "ratios", "--seeds", "1",
                        "--ratios", "0.5/0.5", "--budget", "single_steps.CloseBox-v1=999", "--dry-run"]) == 0
     lines = capsys.readouterr().out.strip().splitlines()
-    assert lines[-1] == "3 runs; nothing written (--dry-run)"      # stage0, stage1, adaptation at 0.5/0.5
+    assert lines[-1] == "3 runs; 450 env steps to go; nothing written (--dry-run)"  # stage0, stage1, 0.5/0.5 adaptation
     assert sum("stage2-CloseMicrowave-v1-r0.5-0.5" in ln for ln in lines) == 1
     assert not out.exists()
