@@ -448,7 +448,8 @@ class RayBackend:
         if address:
             ray.init(address=address, **kw)
         else:
-            ray.init(num_cpus=workers, include_dashboard=False, **kw)
+            # "local": always a fresh instance, never someone's `ray start` cluster on this machine
+            ray.init(address="local", num_cpus=workers, include_dashboard=False, **kw)
         self.capacity = workers or max(1, int(ray.cluster_resources().get("CPU", 1)))
         self.fn = ray.remote(num_cpus=1, max_retries=0)(execute)
 

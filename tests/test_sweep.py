@@ -344,3 +344,51 @@ def test_seeds_budget_and_dry_run(tmp_path, capsys):
     assert lines[-1] == "3 runs; 450 env steps to go; nothing written (--dry-run)"  # stage0, stage1, 0.5/0.5 adaptation
     assert sum("stage2-CloseMicrowave-v1-r0.5-0.5" in ln for ln in lines) == 1
     assert not out.exists()
+
+
+# ----------------------------------------------------------------------------- scheduling
+class _FakeBackend:
+    """In-process backend: records submissions, fails the runs it is told to, marks others done."""
+
+    def __init__(self, out, fail=(), capacity=2):
+        self.out, self.fail, self.capacity, self.order = out, set(fail), capacity, []
+
+    def submit(self, payload):
+        self.order.append(payload["rel"])
+        return len(self.order) - 1
+
+    def wait(self, handles):
+        return [min(handles)]
+
+    def result(self, h):
+        rel = self.order[h]
+        if rel in self.fail:
+            raise RuntimeError("boom\nlast line of the error")
+        (self.out / rel).mkdir(parents=True, exist_ok=True)
+        (self.out / rel / "done.json").write_text("{}")
+        return {"rel": rel, "row": {"eval_success_rate": 0.5, "train_successes": 3}}
+
+
+def test_run_grid_parents_first_failures_block_descendants(tmp_path, capsys):
+    d = sweep.definition_from_args(sweep.make_parser().parse_args(["--preset", "smoke", "--seeds", "1"]))
+    nodes = sweep.build_grid(d)
+    by = {n.rel: n for n in nodes}
+    single = next(n.rel for n in nodes if n.parent is None and n.stages is None)
+    (tmp_path / single).mkdir(parents=True)
+    (tmp_path / single / "done.json").write_text("{}")                      # finished before: skipped
+    stage0 = next(n.rel for n in nodes if n.stages and n.stage == 0 and n.cfg.method == "sac_her_per")
+    be = _FakeBackend(tmp_path, fail={stage0})
+    failed = sweep.run_grid(nodes, tmp_path, be, progress=False)
+    assert single not in be.order
+    pos = {rel: i for i, rel in enumerate(be.order)}
+    for rel in be.order:                                                    # a stage only after its parent
+        if by[rel].parent:
+            assert pos[by[rel].parent] < pos[rel]
+    # long chains first: the 3 stage-0 roots with descendants are submitted before any single-task run
+    assert all(by[r].stages is not None for r in be.order[:2])
+    blocked = {n.rel for n in nodes if n.parent and (n.parent == stage0 or by[n.parent].parent == stage0)}
+    assert set(failed) == {stage0} | blocked and len(blocked) == 2
+    assert not blocked & set(be.order)
+    out = capsys.readouterr().out
+    assert "FAILED" in out and "last line of the error" in out and "2 runs not started" in out
+    assert "final eval success 0.50, successful training episodes 3" in out
