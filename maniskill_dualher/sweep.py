@@ -50,6 +50,9 @@ class Budget:
     learning_starts: int
     capacity: int                       # replay capacity (paper: 1e7)
     updates_per_step: float = 1.0
+    sac_variant: str = "paper"          # "paper" (V network, fixed alpha) or "modern" (no V, learned alpha)
+    lr: float = 1e-4                    # paper Table 3
+    gamma: float = 0.99                 # paper Table 3
     sim_backend: str = "physx_cpu"      # "physx_cuda" + num_envs > 1 for GPU simulation (paper preset on a GPU)
     num_envs: int = 1                   # parallel envs per run (CPU simulation: 1)
 
@@ -68,11 +71,16 @@ PRESETS: Dict[str, Budget] = {
         eval_every=100, eval_episodes=2, checkpoint_every=50, max_episode_steps=50,
         hidden=(32, 32), batch_size=32, random_steps=100, learning_starts=100, capacity=10_000),
     # Default: the whole grid, every table and plot, on a 2-core CPU in <= 90 minutes.
+    # Deviations from the paper, so that runs learn within a CPU budget (measured on ReachTarget:
+    # the paper's SAC (V network, fixed alpha 0.005, lr 1e-4, gamma 0.99) had 0/10 eval successes at 20k
+    # steps where the modern variant (learned alpha, lr 3e-4, gamma 0.95) reached 10/10 at 17.5k):
+    # modern SAC, lr 3e-4, gamma 0.95, 128x128 networks, 100-step episodes, 2k random steps.
     "quick": Budget(
-        single_steps=_per_task(20_000, 20_000, 20_000), stage_steps=_per_task(15_000, 15_000, 15_000),
+        single_steps=_per_task(12_000, 24_000, 24_000), stage_steps=_per_task(8_000, 16_000, 16_000),
         adaptation_steps=_per_task(12_000, 12_000, 12_000), seeds=(0, 1, 2),
-        eval_every=2_000, eval_episodes=10, checkpoint_every=2_000, max_episode_steps=100,
-        hidden=(128, 128), batch_size=128, random_steps=2_000, learning_starts=1_000, capacity=1_000_000),
+        eval_every=3_000, eval_episodes=10, checkpoint_every=3_000, max_episode_steps=100,
+        hidden=(128, 128), batch_size=256, random_steps=2_000, learning_starts=1_000, capacity=1_000_000,
+        sac_variant="modern", lr=3e-4, gamma=0.95),
     # The paper's budgets (section 4.2, Table 3): ReachTarget 500 epochs, CloseBox/CloseMicrowave 200,
     # adaptation 120; epoch = 200 episodes x 150 steps. For GPU simulation or a cluster (--backend ray).
     "paper": Budget(
@@ -114,7 +122,8 @@ def base_config(b: Budget, method: str, seed: int) -> RunConfig:
         eval_episodes=b.eval_episodes, checkpoint_every=b.checkpoint_every, torch_threads=1,
         sim_backend=b.sim_backend, num_envs=b.num_envs,
         sac=SACConfig(hidden=tuple(b.hidden), batch_size=b.batch_size, random_steps=b.random_steps,
-                      learning_starts=b.learning_starts, updates_per_step=b.updates_per_step),
+                      learning_starts=b.learning_starts, updates_per_step=b.updates_per_step,
+                      variant=b.sac_variant, lr=b.lr, gamma=b.gamma),
         replay=ReplayConfig(capacity=b.capacity, her_k=protocol.HER_K_SINGLE))
 
 
