@@ -7,10 +7,11 @@ import pytest
 import torch
 
 import maniskill_dualher  # noqa: F401  (registers the tasks)
-from mani_skill.utils.structs import Pose
 from tasks.close_box import CloseBoxEnv
 from tasks.common import OBS_SLICES, split_goal_obs
 from tasks.solvers import make_solver
+
+from articulated import robot_contact_force, set_articulation_state
 
 LO_ANGLE, HI_ANGLE = CloseBoxEnv.INIT_ANGLE_RANGE
 
@@ -28,23 +29,12 @@ def lid_angle(env) -> float:
 
 def set_state(env, angle=None, center=None, yaw=None):
     """Overwrite the lid angle and/or box pose of the current (CPU, single) episode."""
-    base = env.unwrapped
-    if center is not None:
-        yaw = 0.0 if yaw is None else yaw
-        p = torch.tensor([[center[0], center[1], base.BOX_LIFT]], dtype=torch.float32)
-        q = torch.tensor([[np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)]], dtype=torch.float32)
-        base.box.set_pose(Pose.create_from_pq(p=p, q=q))
-    if angle is not None:
-        base.box.set_qpos(torch.tensor([[angle]], dtype=torch.float32))
-        base.box.set_qvel(torch.zeros((1, 1)))
+    set_articulation_state(env.unwrapped.box, env.unwrapped.BOX_LIFT, angle, center, yaw)
 
 
 def robot_lid_contact(env) -> float:
     """Largest contact force between any robot link and the lid or box (N)."""
-    base = env.unwrapped
-    forces = [torch.linalg.norm(base.scene.get_pairwise_contact_forces(link, part), dim=-1).max()
-              for link in base.agent.robot.links for part in base.box.links]
-    return float(torch.stack(forces).max())
+    return robot_contact_force(env, env.unwrapped.box)
 
 
 def test_hinge_parameters_applied(env):

@@ -8,10 +8,11 @@ import torch
 
 import maniskill_dualher  # noqa: F401  (registers the tasks)
 from mani_skill.utils.geometry import rotation_conversions as rc
-from mani_skill.utils.structs import Pose
 from tasks.close_microwave import CloseMicrowaveEnv
 from tasks.common import OBS_SLICES, split_goal_obs
 from tasks.solvers import make_solver
+
+from articulated import robot_contact_force, set_articulation_state
 
 LO_ANGLE, HI_ANGLE = CloseMicrowaveEnv.INIT_ANGLE_RANGE
 
@@ -30,23 +31,14 @@ def door_angle(env) -> float:
 def set_state(env, angle=None, center=None, yaw=None):
     """Overwrite the door angle and/or microwave pose of the current (CPU, single) episode."""
     base = env.unwrapped
+    set_articulation_state(base.microwave, base.BODY_LIFT, angle, center, yaw)
     if center is not None:
-        yaw = 0.0 if yaw is None else yaw
-        p = torch.tensor([[center[0], center[1], base.BODY_LIFT]], dtype=torch.float32)
-        q = torch.tensor([[np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)]], dtype=torch.float32)
-        base.microwave.set_pose(Pose.create_from_pq(p=p, q=q))
         base._refresh_goal_cache()
-    if angle is not None:
-        base.microwave.set_qpos(torch.tensor([[angle]], dtype=torch.float32))
-        base.microwave.set_qvel(torch.zeros((1, 1)))
 
 
 def robot_microwave_contact(env) -> float:
     """Largest contact force between any robot link and the microwave body or door (N)."""
-    base = env.unwrapped
-    forces = [torch.linalg.norm(base.scene.get_pairwise_contact_forces(link, part), dim=-1).max()
-              for link in base.agent.robot.links for part in base.microwave.links]
-    return float(torch.stack(forces).max())
+    return robot_contact_force(env, env.unwrapped.microwave)
 
 
 def tcp_door_coords(env):
