@@ -8,7 +8,7 @@ import torch
 from mani_skill.utils.registration import register_env
 from mani_skill.utils.structs import Pose
 
-from tasks.common import DEFAULT_MAX_EPISODE_STEPS, PandaGoalEnv
+from tasks.common import DEFAULT_MAX_EPISODE_STEPS, PandaGoalEnv, transform_points
 
 # x-axis -> -y: a joint frame with this rotation turns about the world -y axis (joint axis = frame
 # x-axis), so a positive hinge angle lifts the lid's free (+x) edge up.
@@ -169,9 +169,8 @@ class CloseBoxEnv(PandaGoalEnv):
 
     # ------------------------------------------------------------------ goals and evaluation
     def _local_point(self, pose: Pose, local) -> torch.Tensor:
-        """World position of a fixed point given in the frame of ``pose`` (batched)."""
-        pt = torch.tensor(local, dtype=torch.float32, device=self.device)
-        return (pose * Pose.create_from_pq(p=pt)).p
+        """World position of a fixed point given in the frame of ``pose`` (batched; cheaper than Pose * Pose)."""
+        return transform_points(pose.raw_pose, local)
 
     def _achieved_goal(self) -> torch.Tensor:
         return self._local_point(self.lid.pose, self._free_edge_local)
