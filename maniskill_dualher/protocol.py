@@ -18,12 +18,11 @@ from __future__ import annotations
 import copy
 import hashlib
 import json
-import os
-import tempfile
 from pathlib import Path
 from typing import List, Optional, Sequence, Union
 
 from maniskill_dualher.config import ConfigError, RunConfig, format_ratio
+from maniskill_dualher.fileio import atomic_write_text  # noqa: F401  (re-exported for report/sweep)
 
 PathLike = Union[str, Path]
 
@@ -35,23 +34,6 @@ LINEAGE_FILE = "stage.json"  # (train.py writes lineage.json: where the networks
 
 
 # --------------------------------------------------------------------------- small shared helpers
-def atomic_write_text(path: PathLike, text: str) -> None:
-    """Write via a temp file in the same folder + os.replace, so readers never see half a file."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix="." + path.name + ".", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", newline="") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
-
-
 def short_hash(obj) -> str:
     """8 hex chars of sha256 over canonical JSON: the key that makes a folder name a config identity."""
     blob = json.dumps(obj, sort_keys=True, separators=(",", ":"), default=list)

@@ -20,7 +20,6 @@ import dataclasses
 import io
 import json
 import math
-import os
 import sys
 import time
 from pathlib import Path
@@ -30,6 +29,7 @@ import numpy as np
 import torch
 
 from .config import ConfigError, ReplayConfig, RunConfig, SACConfig, parse_ratio
+from .fileio import atomic_torch_save, atomic_write_text
 from .envs import EVAL_SEED_BASE, BatchEnv, make_env, train_episode_seed
 from .replay.base import Episode
 from .sac import SAC
@@ -38,22 +38,6 @@ METRIC_COLUMNS = ["env_steps", "eval_return", "eval_success_rate", "eval_success
                   "train_episodes", "train_successes", "updates", "wall_time_s"]
 DEMO_SEED_BASE = 2_000_000_000
 CHECKPOINT = "checkpoint.pt"
-
-
-# --------------------------------------------------------------------------- atomic files
-def atomic_write_text(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    with open(tmp, "w") as f:
-        f.write(text)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
-
-
-def atomic_torch_save(obj, path: Path) -> None:
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    torch.save(obj, tmp)
-    os.replace(tmp, path)
 
 
 def rows_to_csv(rows: List[dict]) -> str:
@@ -291,7 +275,6 @@ class Trainer:
         stored = self.episodes > 0 or self._has_replay()
 
         def policy(x):
-            nonlocal stored
             a = self._explore(x)
             self.env_steps += N
             bar.update(N)
