@@ -19,6 +19,7 @@ summed over both critics (the paper's Eq. 9), for whoever wants priorities.
 """
 from __future__ import annotations
 
+import contextlib
 import math
 from typing import Dict, List, Optional, Tuple
 
@@ -31,6 +32,20 @@ from .config import SACConfig
 from .replay.base import Batch
 
 LOG_STD_MIN, LOG_STD_MAX = -5.0, 2.0
+
+
+@contextlib.contextmanager
+def matmul_precision(precision: str):
+    """torch.set_float32_matmul_precision for a block, restored after (it is process-global)."""
+    old = torch.get_float32_matmul_precision()
+    if old == precision:
+        yield
+        return
+    torch.set_float32_matmul_precision(precision)
+    try:
+        yield
+    finally:
+        torch.set_float32_matmul_precision(old)
 
 
 def mlp(in_dim: int, hidden: Tuple[int, ...], out_dim: int) -> nn.Sequential:
@@ -132,7 +147,8 @@ class SAC(nn.Module):
     @torch.no_grad()
     def act(self, obs: np.ndarray, deterministic: bool = False) -> np.ndarray:
         x = torch.as_tensor(obs, dtype=torch.float32, device=self.device)
-        a = self.actor.mean_action(x) if deterministic else self.actor(x)[0]
+        with matmul_precision(self.cfg.matmul_precision):
+            a = self.actor.mean_action(x) if deterministic else self.actor(x)[0]
         return a.cpu().numpy()
 
     @property
@@ -142,6 +158,10 @@ class SAC(nn.Module):
     # ------------------------------------------------------------------ update
     def update(self, batch: Batch, actor_batch: Optional[Batch] = None) -> Tuple[np.ndarray, Dict[str, float]]:
         """One gradient step on every network. Returns (|TD| summed over critics per sample, logs)."""
+        with matmul_precision(self.cfg.matmul_precision):
+            return self._update(batch, actor_batch)
+
+    def _update(self, batch: Batch, actor_batch: Optional[Batch]) -> Tuple[np.ndarray, Dict[str, float]]:
         obs, act, rew, next_obs, done = batch.obs, batch.action, batch.reward, batch.next_obs, batch.done
         alpha = self.log_alpha.exp().detach()
         w = batch.weights  # importance-sampling weights or None

@@ -1,0 +1,63 @@
+"""SAC numerics: the fast matmul precision stays at fp32 rounding level and leaks no global state."""
+import dataclasses
+
+import numpy as np
+import pytest
+import torch
+
+from maniskill_dualher.config import ConfigError, RunConfig, SACConfig
+from maniskill_dualher.replay.base import Batch
+from maniskill_dualher.sac import SAC, matmul_precision
+
+D, A, B = 13, 4, 64
+
+
+def make_batch(seed: int) -> Batch:
+    g = torch.Generator().manual_seed(seed)
+    return Batch(obs=torch.randn(B, D, generator=g), action=torch.rand(B, A, generator=g) * 2 - 1,
+                 reward=(torch.rand(B, generator=g) < 0.3).float(), next_obs=torch.randn(B, D, generator=g),
+                 done=torch.zeros(B))
+
+
+@pytest.mark.parametrize("variant", ["paper", "modern"])
+def test_medium_precision_agrees_with_strict_fp32(variant):
+    """'medium' lets oneDNN use bf16 kernels. Plain bf16 rounding would put |TD| ~1e-2 off; the update must agree
+    with strict fp32 to ~1e-4 over several steps, and restore the caller's precision setting."""
+    torch.manual_seed(0)
+    strict = SAC(D, A, SACConfig(variant=variant, batch_size=B, hidden=(64, 64), lr=1e-3, matmul_precision="highest"))
+    medium = SAC(D, A, dataclasses.replace(strict.cfg, matmul_precision="medium"))
+    medium.load_state_dict(strict.state_dict())
+    medium.optimizer.load_state_dict(strict.optimizer.state_dict())
+    before = torch.get_float32_matmul_precision()
+    for step in range(5):
+        batch = make_batch(step)
+        rng = torch.get_rng_state()
+        td_strict, _ = strict.update(batch)
+        torch.set_rng_state(rng)
+        td_medium, _ = medium.update(batch)
+        assert torch.get_float32_matmul_precision() == before
+        np.testing.assert_allclose(td_medium, td_strict, rtol=1e-3, atol=1e-4)
+    for (n, p), q in zip(strict.state_dict().items(), medium.state_dict().values()):
+        torch.testing.assert_close(q, p, rtol=1e-3, atol=1e-4, msg=lambda m: f"{n}: {m}")
+    x = make_batch(9).obs
+    torch.manual_seed(1)
+    a_strict = strict.act(x.numpy(), deterministic=True)
+    a_medium = medium.act(x.numpy(), deterministic=True)
+    np.testing.assert_allclose(a_medium, a_strict, atol=1e-3)
+
+
+def test_matmul_precision_context_restores():
+    before = torch.get_float32_matmul_precision()
+    other = "medium" if before != "medium" else "highest"
+    with pytest.raises(RuntimeError):
+        with matmul_precision(other):
+            assert torch.get_float32_matmul_precision() == other
+            raise RuntimeError("boom")
+    assert torch.get_float32_matmul_precision() == before
+
+
+def test_unknown_precision_is_a_config_error():
+    cfg = RunConfig()
+    cfg.sac.matmul_precision = "bf16"
+    with pytest.raises(ConfigError, match="bf16"):
+        cfg.validate()
