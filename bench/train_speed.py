@@ -4,6 +4,12 @@ SAC + HerReplayBuffer (future, n_sampled_goal=4) on the same task and settings, 
 per-update cost (ms) of each, and of ours for every method (sac, sac_her_per, dual_buffer) x SAC variant
 (paper, modern).
 
+Matmul precision. Ours runs with its default ``matmul_precision="medium"`` (oneDNN may use bf16 kernels
+for fp32 matmuls; results stay at fp32 rounding level, tests/test_sac.py) and, as a control, with
+"highest" (strict fp32). SB3 runs as users get it ("highest", torch's default) and with the same "medium"
+switch set around its calls, so the table separates what the setting buys from what the implementation
+buys.
+
     python bench/train_speed.py [--steps 2000] [--threads 1] [--chunk 500] [--updates 300]
     python bench/train_speed.py --profile [--variant paper] [--updates 200]   # where one SAC.update goes
 
@@ -53,14 +59,14 @@ ENV_KW = dict(sim_backend="physx_cpu", render_backend="none", obs_mode="state",
 
 
 # --------------------------------------------------------------------------- ours
-def our_config(method: str, variant: str, threads: int, seed: int = 0):
+def our_config(method: str, variant: str, threads: int, seed: int = 0, precision: str = "medium"):
     from maniskill_dualher.config import ReplayConfig, RunConfig, SACConfig
     return RunConfig(
         env_id=ENV_ID, method=method, seed=seed, total_steps=10**9, max_episode_steps=EP_LEN,
         control_mode=ENV_KW["control_mode"], sim_backend=ENV_KW["sim_backend"], reward_mode="sparse",
         eval_every=10**9, checkpoint_every=10**9, torch_threads=threads,
         sac=SACConfig(variant=variant, batch_size=256, hidden=(256, 256), updates_per_step=1.0,
-                      random_steps=LEARNING_STARTS, learning_starts=LEARNING_STARTS),
+                      random_steps=LEARNING_STARTS, learning_starts=LEARNING_STARTS, matmul_precision=precision),
         replay=ReplayConfig(capacity=CAPACITY, her_strategy="future", her_k=4,
                             solver_demos=5 if method == "dual_buffer" else 0))
 
@@ -68,12 +74,12 @@ def our_config(method: str, variant: str, threads: int, seed: int = 0):
 class Ours:
     """Our Trainer, driven in time slices with run(stop_at=...)."""
 
-    def __init__(self, method: str, variant: str, threads: int, tmp: str):
+    def __init__(self, method: str, variant: str, threads: int, tmp: str, precision: str = "medium"):
         from maniskill_dualher.train import Trainer
-        self.name = f"ours {method} ({variant})"
+        self.name = f"ours {method} ({variant}, {precision})"
         self.threads = threads
-        out = os.path.join(tmp, f"{method}_{variant}")
-        self.tr = Trainer(our_config(method, variant, threads), out, show_progress=False)
+        out = os.path.join(tmp, f"{method}_{variant}_{precision}")
+        self.tr = Trainer(our_config(method, variant, threads, precision=precision), out, show_progress=False)
         self._stop_t = None
 
         def stamp():  # replaces the stop-checkpoint: the chunk ends when its last episode is stored
@@ -159,9 +165,11 @@ class GoalDictEnv(gym.Env):
 
 
 class SB3:
-    def __init__(self, threads: int, seed: int = 0):
+    def __init__(self, threads: int, seed: int = 0, precision: str = "highest"):
         from stable_baselines3 import SAC, HerReplayBuffer
-        self.name = "SB3 SAC + HER"
+        from maniskill_dualher.sac import matmul_precision
+        self.name = f"SB3 SAC + HER ({precision})"
+        self.precision = lambda: matmul_precision(precision)
         self.threads = threads
         torch.set_num_threads(threads)
         self.env = GoalDictEnv()
@@ -178,7 +186,8 @@ class SB3:
     def run(self, n: int) -> float:
         torch.set_num_threads(self.threads)
         t0 = time.perf_counter()
-        self.model.learn(total_timesteps=n, reset_num_timesteps=False, progress_bar=False)
+        with self.precision():
+            self.model.learn(total_timesteps=n, reset_num_timesteps=False, progress_bar=False)
         return time.perf_counter() - t0
 
     def warmup(self) -> float:
@@ -192,7 +201,8 @@ class SB3:
         m = self.model
 
         def full():  # SB3's train step: HER sample (relabel on the fly) + SAC update
-            m.train(gradient_steps=1, batch_size=256)
+            with self.precision():
+                m.train(gradient_steps=1, batch_size=256)
 
         def sample_only():
             m.replay_buffer.sample(256, env=m._vec_normalize_env)
@@ -235,7 +245,11 @@ def bench(args) -> None:
           f"torch threads {args.threads}")
     print(f"# load average at start: {loadavg()}")
 
-    loop = [Ours("sac_her_per", v, args.threads, tmp) for v in args.variants] + [SB3(args.threads)]
+    loop = [Ours("sac_her_per", v, args.threads, tmp) for v in args.variants]
+    if not args.skip_controls:
+        loop.append(Ours("sac_her_per", args.variants[-1], args.threads, tmp, precision="highest"))
+    sb3 = [SB3(args.threads)] + ([] if args.skip_controls else [SB3(args.threads, precision="medium")])
+    loop += sb3
     nou = {}
     for c in loop:
         nou[c.name] = c.warmup()
@@ -292,10 +306,10 @@ def bench(args) -> None:
     print("  part ms   = ours: SAC.update alone on a fixed batch; SB3: HerReplayBuffer.sample(256) alone")
     print(f"  timed env steps: " + ", ".join(f"{k}: {done[k]} in {elapsed[k]:.1f} s" for k in done))
     print()
-    sb = loop[-1].name
-    for c in loop[:-1]:
-        print(f"{c.name} / SB3 env steps/s: {sps[c.name] / sps[sb]:.2f}x   "
-              f"(update cost SB3/ours: {upd[sb][0] / upd[c.name][0]:.2f}x)")
+    for b in sb3:
+        for c in loop[:-len(sb3)]:
+            print(f"{c.name} / {b.name}, env steps/s: {sps[c.name] / sps[b.name]:.2f}x   "
+                  f"(update cost SB3/ours: {upd[b.name][0] / upd[c.name][0]:.2f}x)")
     for c in loop:
         c.close()
 
@@ -363,6 +377,8 @@ def main(argv=None) -> int:
     p.add_argument("--updates", type=int, default=300, help="updates timed per contender in the update bench")
     p.add_argument("--variant", choices=("paper", "modern", "both"), default="both", help="our SAC variant(s)")
     p.add_argument("--skip-methods", action="store_true", help="update bench: skip sac and dual_buffer")
+    p.add_argument("--skip-controls", action="store_true",
+                   help="skip the precision controls (ours at 'highest', SB3 at 'medium')")
     p.add_argument("--profile", action="store_true", help="profile SAC.update alone and exit")
     p.add_argument("--rows", type=int, default=25, help="--profile: rows of the op table")
     args = p.parse_args(argv)
