@@ -3,12 +3,11 @@ from __future__ import annotations
 
 import numpy as np
 import sapien
-import torch
 
 from mani_skill.utils.registration import register_env
-from mani_skill.utils.structs import Pose
 
-from tasks.common import DEFAULT_MAX_EPISODE_STEPS, PandaGoalEnv, transform_points
+from tasks.common import DEFAULT_MAX_EPISODE_STEPS
+from tasks.hinged import HingedGeometry, HingedPanelEnv, chord_tolerance
 
 # x-axis -> -y: a joint frame with this rotation turns about the world -y axis (joint axis = frame
 # x-axis), so a positive hinge angle lifts the lid's free (+x) edge up.
@@ -16,7 +15,7 @@ _Q_X_TO_MINUS_Y = [float(np.sqrt(0.5)), 0.0, 0.0, -float(np.sqrt(0.5))]
 
 
 @register_env("CloseBox-v1", max_episode_steps=DEFAULT_MAX_EPISODE_STEPS)
-class CloseBoxEnv(PandaGoalEnv):
+class CloseBoxEnv(HingedPanelEnv):
     """
     **Task Description:**
     Close the lid of a box standing on the table in front of the Panda. The box is an open-top shell
@@ -65,7 +64,7 @@ class CloseBoxEnv(PandaGoalEnv):
     BOX_WIDTH = 0.20  # y
     BOX_HEIGHT = 0.09  # z
     WALL = 0.008
-    BOX_LIFT = 0.001  # above the table
+    BOX_LIFT = BODY_LIFT = 0.001  # above the table
     # Lid.
     LID_THICKNESS = 0.01
     LID_GAP = 0.002  # between the top of the walls and the closed lid's inner face
@@ -88,111 +87,43 @@ class CloseBoxEnv(PandaGoalEnv):
     GOAL_BOX_LOW = (0.195, -0.11, 0.09)
     GOAL_BOX_HIGH = (0.235, 0.11, 0.10)
 
-    goal_tolerance = float(2 * LID_LENGTH * np.sin(SUCCESS_ANGLE / 2))
+    ANGLE_INFO_KEY = "lid_angle"
+    goal_tolerance = chord_tolerance(LID_LENGTH, SUCCESS_ANGLE)
 
-    def _load_scene(self, options: dict):
-        super()._load_scene(options)
+    def _geometry(self) -> HingedGeometry:
         hx, hy, h = self.BOX_DEPTH / 2, self.BOX_WIDTH / 2, self.BOX_HEIGHT
-        t = self.WALL
-        render = self.scene.can_render()
-        if render:
-            box_mat = sapien.render.RenderMaterial(base_color=[0.55, 0.38, 0.22, 1.0])
-            lid_mat = sapien.render.RenderMaterial(base_color=[0.70, 0.50, 0.30, 1.0])
-
-        builder = self.scene.create_articulation_builder()
-        body = builder.create_link_builder()
-        body.set_name("box")
-        walls = [  # (centre, half size) in the box frame (origin: bottom centre): bottom, -x, +x, -y, +y
-            ([0, 0, t / 2], [hx, hy, t / 2]),
-            ([-hx + t / 2, 0, h / 2], [t / 2, hy, h / 2]),
-            ([hx - t / 2, 0, h / 2], [t / 2, hy, h / 2]),
-            ([0, -hy + t / 2, h / 2], [hx - t, t / 2, h / 2]),
-            ([0, hy - t / 2, h / 2], [hx - t, t / 2, h / 2]),
-        ]
-        for centre, half in walls:
-            body.add_box_collision(sapien.Pose(centre), half)
-            if render:
-                body.add_box_visual(sapien.Pose(centre), half, material=box_mat)
-
-        lid = builder.create_link_builder(body)
-        lid.set_name("lid")
-        L, th = self.LID_LENGTH, self.LID_THICKNESS
-        # Lid frame: origin on the hinge axis at the lid's inner face; closed, the lid runs along +x with
-        # its inner face at z = 0 and its outer face at z = +thickness.
-        half = [L / 2, hy, th / 2]
-        lid.add_box_collision(sapien.Pose([L / 2, 0, th / 2]), half, density=self.LID_DENSITY)
-        if render:
-            lid.add_box_visual(sapien.Pose([L / 2, 0, th / 2]), half, material=lid_mat)
+        t, L, th = self.WALL, self.LID_LENGTH, self.LID_THICKNESS
         mass = self.LID_DENSITY * L * self.BOX_WIDTH * th
         inertia = mass / 12 * np.array([self.BOX_WIDTH ** 2 + th ** 2, L ** 2 + th ** 2, L ** 2 + self.BOX_WIDTH ** 2])
-        lid.set_mass_and_inertia(mass, sapien.Pose([self.LID_COM_OFFSET, 0, th / 2]), inertia)
-        lid.set_joint_name("lid_hinge")
-        lid.set_joint_properties(
-            "revolute",
-            limits=[list(self.HINGE_LIMITS)],
-            pose_in_parent=sapien.Pose([-hx, 0, h + self.LID_GAP], _Q_X_TO_MINUS_Y),
-            pose_in_child=sapien.Pose([0, 0, 0], _Q_X_TO_MINUS_Y),
-            damping=self.HINGE_DAMPING,
+        return HingedGeometry(
+            name="box", body_name="box", panel_name="lid", joint_name="lid_hinge",
+            # box frame (origin: bottom centre): bottom, -x, +x, -y, +y walls
+            body_parts=[
+                ([0, 0, t / 2], [hx, hy, t / 2]),
+                ([-hx + t / 2, 0, h / 2], [t / 2, hy, h / 2]),
+                ([hx - t / 2, 0, h / 2], [t / 2, hy, h / 2]),
+                ([0, -hy + t / 2, h / 2], [hx - t, t / 2, h / 2]),
+                ([0, hy - t / 2, h / 2], [hx - t, t / 2, h / 2]),
+            ],
+            # lid frame: origin on the hinge axis at the lid's inner face; closed, the lid runs along +x
+            # with its inner face at z = 0 and its outer face at z = +thickness
+            panel_parts=[([L / 2, 0, th / 2], [L / 2, hy, th / 2])],
+            panel_density=self.LID_DENSITY,
+            panel_mass_inertia=(mass, sapien.Pose([self.LID_COM_OFFSET, 0, th / 2]), inertia),
+            hinge_in_body=sapien.Pose([-hx, 0, h + self.LID_GAP], _Q_X_TO_MINUS_Y),
+            hinge_in_panel=sapien.Pose([0, 0, 0], _Q_X_TO_MINUS_Y),
+            free_edge_panel=[L, 0.0, 0.0],
+            push_panel=[self.PUSH_RADIUS, 0.0, th],
+            closed_free_edge_body=[-hx + L, 0.0, h + self.LID_GAP],
+            body_color=[0.55, 0.38, 0.22, 1.0],
+            panel_color=[0.70, 0.50, 0.30, 1.0],
+            parked_pose=sapien.Pose(p=[0.5, 0.6, self.BOX_LIFT]),  # clear of the robot until reset
         )
-        builder.initial_pose = sapien.Pose(p=[0.5, 0.6, self.BOX_LIFT])  # clear of the robot until reset
-        self.box = builder.build(name="box", fix_root_link=True)
-        self.hinge = self.box.active_joints_map["lid_hinge"]
-        self.hinge.set_friction(self.HINGE_FRICTION)  # the builder's friction argument is ignored
-        self.lid = self.box.links_map["lid"]
 
-        # Fixed points: in the lid frame (free edge, push point) and the box frame (closed free edge).
-        self._free_edge_local = [L, 0.0, 0.0]
-        self._push_local = [self.PUSH_RADIUS, 0.0, th]
-        self._closed_free_edge_box = [-hx + L, 0.0, h + self.LID_GAP]
+    @property
+    def box(self):
+        return self.articulation
 
-    def _initialize_episode(self, env_idx: torch.Tensor, options: dict):
-        super()._initialize_episode(env_idx, options)
-        with torch.device(self.device):
-            b = len(env_idx)
-
-            def uniform(lo_hi, n):
-                lo, hi = lo_hi
-                return lo + (hi - lo) * torch.rand(n)
-
-            p = torch.zeros((b, 3))
-            p[:, 0] = uniform(self.CENTER_X_RANGE, b)
-            p[:, 1] = uniform(self.CENTER_Y_RANGE, b)
-            p[:, 2] = self.BOX_LIFT
-            yaw = uniform(self.YAW_RANGE, b)
-            q = torch.zeros((b, 4))
-            q[:, 0] = torch.cos(yaw / 2)
-            q[:, 3] = torch.sin(yaw / 2)
-            self.box.set_pose(Pose.create_from_pq(p=p, q=q))
-            angle = uniform(self.INIT_ANGLE_RANGE, b)
-            self.box.set_qpos(angle[:, None])
-            self.box.set_qvel(torch.zeros((b, 1)))
-
-    # ------------------------------------------------------------------ goals and evaluation
-    def _local_point(self, pose: Pose, local) -> torch.Tensor:
-        """World position of a fixed point given in the frame of ``pose`` (batched; cheaper than Pose * Pose)."""
-        return transform_points(pose.raw_pose, local)
-
-    def _achieved_goal(self) -> torch.Tensor:
-        return self._local_point(self.lid.pose, self._free_edge_local)
-
-    def _desired_goal(self) -> torch.Tensor:
-        return self._local_point(self.box.pose, self._closed_free_edge_box)
-
-    def push_point(self) -> torch.Tensor:
-        """(N, 3) middle of the lid's outer face, ``PUSH_RADIUS`` from the hinge, world frame."""
-        return self._local_point(self.lid.pose, self._push_local)
-
-    def _evaluate_extra(self) -> dict:
-        return dict(lid_angle=self.box.qpos[:, 0].clone())
-
-    # ------------------------------------------------------------------ observations
-    def _object_pose(self) -> torch.Tensor:
-        return self.lid.pose.raw_pose
-
-    def _joint_state(self) -> torch.Tensor:
-        return torch.cat([self.box.qpos[:, :1], self.box.qvel[:, :1]], dim=-1)
-
-    # ------------------------------------------------------------------ rewards
-    def _dense_shaping(self, info: dict) -> torch.Tensor:
-        reach = torch.linalg.norm(self.agent.tcp.pose.p - self.push_point(), dim=-1)
-        return 0.5 * (1.0 - torch.tanh(10.0 * reach))
+    @property
+    def lid(self):
+        return self.panel

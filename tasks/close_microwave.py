@@ -3,19 +3,18 @@ from __future__ import annotations
 
 import numpy as np
 import sapien
-import torch
 
 from mani_skill.utils.registration import register_env
-from mani_skill.utils.structs import Pose
 
-from tasks.common import DEFAULT_MAX_EPISODE_STEPS, PandaGoalEnv, transform_points
+from tasks.common import DEFAULT_MAX_EPISODE_STEPS
+from tasks.hinged import HingedGeometry, HingedPanelEnv, chord_tolerance
 
 # x-axis -> +z: a joint frame with this rotation turns about the vertical (joint axis = frame x-axis).
 _Q_X_TO_Z = [float(np.sqrt(0.5)), 0.0, -float(np.sqrt(0.5)), 0.0]
 
 
 @register_env("CloseMicrowave-v1", max_episode_steps=DEFAULT_MAX_EPISODE_STEPS)
-class CloseMicrowaveEnv(PandaGoalEnv):
+class CloseMicrowaveEnv(HingedPanelEnv):
     """
     **Task Description:**
     Close the door of a microwave standing on the table in front of the Panda, to its left (+y). The
@@ -92,133 +91,43 @@ class CloseMicrowaveEnv(PandaGoalEnv):
     GOAL_BOX_LOW = (-0.05, 0.41, 0.09)
     GOAL_BOX_HIGH = (0.08, 0.53, 0.10)
 
-    goal_tolerance = float(2 * DOOR_LENGTH * np.sin(SUCCESS_ANGLE / 2))
+    ANGLE_INFO_KEY = "door_angle"
+    goal_tolerance = chord_tolerance(DOOR_LENGTH, SUCCESS_ANGLE)
 
-    def _load_scene(self, options: dict):
-        super()._load_scene(options)
+    def _geometry(self) -> HingedGeometry:
         hx, hy, hz = self.BODY_DEPTH / 2, self.BODY_WIDTH / 2, self.BODY_HEIGHT / 2
-        t = self.WALL
-        render = self.scene.can_render()
-        if render:
-            body_mat = sapien.render.RenderMaterial(base_color=[0.75, 0.75, 0.78, 1.0])
-            door_mat = sapien.render.RenderMaterial(base_color=[0.15, 0.15, 0.18, 1.0])
-
-        builder = self.scene.create_articulation_builder()
-        body = builder.create_link_builder()
-        body.set_name("body")
-        walls = [  # (centre, half size): bottom, top, back, -y side, +y side
-            ([0, 0, t / 2], [hx, hy, t / 2]),
-            ([0, 0, self.BODY_HEIGHT - t / 2], [hx, hy, t / 2]),
-            ([hx - t / 2, 0, hz], [t / 2, hy, hz]),
-            ([0, -hy + t / 2, hz], [hx, t / 2, hz]),
-            ([0, hy - t / 2, hz], [hx, t / 2, hz]),
-        ]
-        for centre, half in walls:
-            body.add_box_collision(sapien.Pose(centre), half)
-            if render:
-                body.add_box_visual(sapien.Pose(centre), half, material=body_mat)
-
-        door = builder.create_link_builder(body)
-        door.set_name("door")
-        L, th, hd = self.DOOR_LENGTH, self.DOOR_THICKNESS, self.DOOR_HEIGHT
-        # Door frame: origin on the hinge axis, at the bottom of the door's outer face (the hinge sits at
-        # the outer corner, so the opened door stays on the +y side of its hinge); closed, the door runs
-        # along +y, its outer face (towards the robot) at x = 0 and its inner face at x = +thickness.
-        parts = [
-            ([th / 2, L / 2, hd / 2], [th / 2, L / 2, hd / 2]),
-            ([-self.HANDLE_HALF_SIZE[0], L - self.HANDLE_INSET, hd / 2], list(self.HANDLE_HALF_SIZE)),
-        ]
-        for centre, half in parts:
-            door.add_box_collision(sapien.Pose(centre), half)
-            if render:
-                door.add_box_visual(sapien.Pose(centre), half, material=door_mat)
-        hinge_in_body = sapien.Pose([-hx - self.DOOR_GAP - th, -hy, self.DOOR_LIFT], _Q_X_TO_Z)
-        door.set_joint_name("door_hinge")
-        door.set_joint_properties(
-            "revolute",
-            limits=[list(self.HINGE_LIMITS)],
-            pose_in_parent=hinge_in_body,
-            pose_in_child=sapien.Pose([0, 0, 0], _Q_X_TO_Z),
-            damping=self.HINGE_DAMPING,
+        t, L, th, hd = self.WALL, self.DOOR_LENGTH, self.DOOR_THICKNESS, self.DOOR_HEIGHT
+        return HingedGeometry(
+            name="microwave", body_name="body", panel_name="door", joint_name="door_hinge",
+            # body frame (origin: bottom centre): bottom, top, back, -y side, +y side; the front is open
+            body_parts=[
+                ([0, 0, t / 2], [hx, hy, t / 2]),
+                ([0, 0, self.BODY_HEIGHT - t / 2], [hx, hy, t / 2]),
+                ([hx - t / 2, 0, hz], [t / 2, hy, hz]),
+                ([0, -hy + t / 2, hz], [hx, t / 2, hz]),
+                ([0, hy - t / 2, hz], [hx, t / 2, hz]),
+            ],
+            # door frame: origin on the hinge axis, at the bottom of the door's outer face (the hinge sits
+            # at the outer corner, so the opened door stays on the +y side of its hinge); closed, the door
+            # runs along +y, its outer face (towards the robot) at x = 0 and its inner face at x = +thickness
+            panel_parts=[
+                ([th / 2, L / 2, hd / 2], [th / 2, L / 2, hd / 2]),
+                ([-self.HANDLE_HALF_SIZE[0], L - self.HANDLE_INSET, hd / 2], list(self.HANDLE_HALF_SIZE)),
+            ],
+            hinge_in_body=sapien.Pose([-hx - self.DOOR_GAP - th, -hy, self.DOOR_LIFT], _Q_X_TO_Z),
+            hinge_in_panel=sapien.Pose([0, 0, 0], _Q_X_TO_Z),
+            free_edge_panel=[0.0, L, hd / 2],
+            push_panel=[0.0, self.PUSH_RADIUS, hd / 2],
+            closed_free_edge_body=[-hx - self.DOOR_GAP - th, -hy + L, self.DOOR_LIFT + hd / 2],
+            body_color=[0.75, 0.75, 0.78, 1.0],
+            panel_color=[0.15, 0.15, 0.18, 1.0],
+            parked_pose=sapien.Pose(p=[0.5, 0.6, 0]),  # clear of the robot until reset places it
         )
-        builder.initial_pose = sapien.Pose(p=[0.5, 0.6, 0])  # clear of the robot until reset places it
-        self.microwave = builder.build(name="microwave", fix_root_link=True)
-        self.hinge = self.microwave.active_joints_map["door_hinge"]
-        self.hinge.set_friction(self.HINGE_FRICTION)  # the builder's friction argument is ignored
-        self.door = self.microwave.links_map["door"]
 
-        # Fixed points: in the door frame (free edge, push point) and the body frame (closed free edge).
-        def point(xyz):
-            return torch.tensor(xyz, dtype=torch.float32, device=self.device)
+    @property
+    def microwave(self):
+        return self.articulation
 
-        self._free_edge_local = point([0.0, L, hd / 2])
-        self._push_local = point([0.0, self.PUSH_RADIUS, hd / 2])
-        self._closed_free_edge_body = point([-hx - self.DOOR_GAP - th, -hy + L, self.DOOR_LIFT + hd / 2])
-        # The body only moves in _initialize_episode / set_state_dict: cache the desired goal (N, 3) so it
-        # need not be recomputed from the body pose every step. Replaced, never written in place, so goal
-        # tensors handed out earlier (info) keep their values.
-        self._desired_cache = torch.zeros((self.num_envs, 3), device=self.device)
-
-    def _initialize_episode(self, env_idx: torch.Tensor, options: dict):
-        super()._initialize_episode(env_idx, options)
-        with torch.device(self.device):
-            b = len(env_idx)
-
-            def uniform(lo_hi, n):
-                lo, hi = lo_hi
-                return lo + (hi - lo) * torch.rand(n)
-
-            p = torch.full((b, 3), self.BODY_LIFT)
-            p[:, 0] = uniform(self.CENTER_X_RANGE, b)
-            p[:, 1] = uniform(self.CENTER_Y_RANGE, b)
-            yaw = uniform(self.YAW_RANGE, b)
-            q = torch.zeros((b, 4))
-            q[:, 0] = torch.cos(yaw / 2)
-            q[:, 3] = torch.sin(yaw / 2)
-            self.microwave.set_pose(Pose.create_from_pq(p=p, q=q))
-            cache = self._desired_cache.clone()
-            cache[env_idx] = transform_points(torch.cat([p, q], dim=-1), self._closed_free_edge_body)
-            self._desired_cache = cache
-            angle = uniform(self.INIT_ANGLE_RANGE, b)
-            self.microwave.set_qpos(angle[:, None])
-            self.microwave.set_qvel(torch.zeros((b, 1)))
-
-    def set_state_dict(self, state: dict, env_idx: torch.Tensor = None):
-        super().set_state_dict(state, env_idx)
-        self._refresh_goal_cache()
-
-    def _refresh_goal_cache(self):
-        """Recompute the cached desired goal from the body pose (call after moving the body by hand)."""
-        self._desired_cache = transform_points(self.microwave.pose.raw_pose, self._closed_free_edge_body)
-
-    # ------------------------------------------------------------------ goals and evaluation
-    def _achieved_goal(self) -> torch.Tensor:
-        # One door-pose read per step (evaluate() runs first), shared with the observation and the reward.
-        self._door_pose_at_eval = self.door.pose.raw_pose
-        return transform_points(self._door_pose_at_eval, self._free_edge_local)
-
-    def _desired_goal(self) -> torch.Tensor:
-        return self._desired_cache
-
-    def push_point(self) -> torch.Tensor:
-        """(N, 3) middle of the door's outer face, ``PUSH_RADIUS`` from the hinge, world frame (as of evaluate())."""
-        return transform_points(self._door_pose_at_eval, self._push_local)
-
-    def _evaluate_extra(self) -> dict:
-        return dict(door_angle=self.microwave.qpos[:, 0].clone())
-
-    # ------------------------------------------------------------------ observations
-    def _object_pose(self) -> torch.Tensor:
-        # The door pose read in this step's evaluate(), which runs before every observation.
-        pose = getattr(self, "_door_pose_at_eval", None)
-        return self.door.pose.raw_pose if pose is None else pose
-
-    def _joint_state(self) -> torch.Tensor:
-        return torch.cat([self.microwave.qpos[:, :1], self.microwave.qvel[:, :1]], dim=-1)
-
-    # ------------------------------------------------------------------ rewards
-    def _dense_shaping(self, info: dict) -> torch.Tensor:
-        tcp = getattr(self, "tcp_pose_at_eval", None)
-        tcp = self.agent.tcp.pose.raw_pose if tcp is None else tcp
-        reach = torch.linalg.norm(tcp[:, :3] - self.push_point(), dim=-1)
-        return 0.5 * (1.0 - torch.tanh(10.0 * reach))
+    @property
+    def door(self):
+        return self.panel

@@ -29,7 +29,10 @@ def lid_angle(env) -> float:
 
 def set_state(env, angle=None, center=None, yaw=None):
     """Overwrite the lid angle and/or box pose of the current (CPU, single) episode."""
-    set_articulation_state(env.unwrapped.box, env.unwrapped.BOX_LIFT, angle, center, yaw)
+    base = env.unwrapped
+    set_articulation_state(base.box, base.BOX_LIFT, angle, center, yaw)
+    if center is not None:
+        base._refresh_goal_cache()
 
 
 def robot_lid_contact(env) -> float:
