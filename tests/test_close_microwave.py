@@ -232,19 +232,3 @@ def test_goal_box_holds_every_corner_pose(env):
         set_state(env, angle=0.8, center=(x, y), yaw=yaw)
         dg = base.evaluate()["desired_goal"][0]
         assert torch.all(dg >= lo) and torch.all(dg <= hi), f"desired goal {dg} outside the goal box"
-
-
-def test_cached_desired_goal_follows_the_body(env):
-    """The desired goal is cached at reset; it must equal the closed free edge of the body where it stands."""
-    from tasks.common import transform_points
-
-    base = env.unwrapped
-    for seed in (9, 10):
-        obs, info = env.reset(seed=seed)
-        first = info["desired_goal"].clone()
-        for _ in range(5):
-            obs, _, _, _, info = env.step(env.action_space.sample())
-        assert torch.equal(info["desired_goal"], first), "the desired goal is constant within an episode"
-        assert torch.equal(split_goal_obs(obs)[2], first)
-        body = transform_points(base.microwave.pose.raw_pose, base._closed_free_edge_body)
-        torch.testing.assert_close(first, body, atol=1e-6, rtol=0)
