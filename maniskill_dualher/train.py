@@ -50,6 +50,18 @@ def rows_to_csv(rows: List[dict]) -> str:
     return buf.getvalue()
 
 
+def _differing_keys(a: dict, b: dict, prefix: str = "") -> List[str]:
+    """Dotted names of the keys whose values differ between two nested config dicts (missing counts)."""
+    out = []
+    for k in sorted(set(a) | set(b)):
+        va, vb = a.get(k, "<missing>"), b.get(k, "<missing>")
+        if isinstance(va, dict) and isinstance(vb, dict):
+            out += _differing_keys(va, vb, f"{prefix}{k}.")
+        elif va != vb:
+            out.append(prefix + k)
+    return out
+
+
 def load_checkpoint(run_dir: Path) -> dict:
     path = Path(run_dir) / CHECKPOINT
     if not path.is_file():
@@ -108,8 +120,10 @@ class Trainer:
                 old = json.loads(cfg_path.read_text())
             except json.JSONDecodeError:
                 raise ConfigError(f"{cfg_path} is not valid JSON") from None
-            if old != json.loads(self.cfg.to_json()):
-                raise ConfigError(f"{self.out} holds a run of a different config; use another --out")
+            new = json.loads(self.cfg.to_json())
+            if old != new:
+                keys = ", ".join(_differing_keys(old, new)) or "?"
+                raise ConfigError(f"{self.out} holds a run of a different config (differs in: {keys}); use another --out")
 
     def _init_from(self, state: dict, carry_replay: bool) -> None:
         """Transfer: start from another run's final networks (and, optionally, its replay)."""

@@ -66,8 +66,12 @@ def test_run_folder_contents(tmp_path):
 
 def test_other_config_in_same_folder_is_refused(tmp_path):
     run_training(tiny(steps=100), tmp_path / "r", show_progress=False, stop_at=50)
-    with pytest.raises(ConfigError, match="different config"):
+    with pytest.raises(ConfigError, match=r"different config \(differs in: control_mode\)"):
         run_training(tiny(steps=100, control_mode="pd_ee_delta_pos"), tmp_path / "r", show_progress=False)
+    other = tiny(steps=100)
+    other.sac.matmul_precision = "highest"
+    with pytest.raises(ConfigError, match=r"differs in: sac.matmul_precision\)"):
+        run_training(other, tmp_path / "r", show_progress=False)
 
 
 def test_transfer_init_from_loads_networks(tmp_path):
