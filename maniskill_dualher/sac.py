@@ -104,6 +104,12 @@ class Actor(nn.Module):
         logp = logp - (2.0 * (math.log(2.0) - u - F.softplus(-2.0 * u))).sum(-1)
         return a, logp
 
+    def sample(self, obs: torch.Tensor) -> torch.Tensor:
+        """The action of ``forward`` (same random draw, same value) without its log-probability: acting is per env step."""
+        mu, log_std = self.net(obs).chunk(2, dim=-1)
+        log_std = torch.clamp(log_std, LOG_STD_MIN, LOG_STD_MAX)
+        return torch.tanh(mu + log_std.exp() * torch.randn_like(mu))
+
     def mean_action(self, obs: torch.Tensor) -> torch.Tensor:
         mu, _ = self.net(obs).chunk(2, dim=-1)
         return torch.tanh(mu)
@@ -148,7 +154,7 @@ class SAC(nn.Module):
     def act(self, obs: np.ndarray, deterministic: bool = False) -> np.ndarray:
         x = torch.as_tensor(obs, dtype=torch.float32, device=self.device)
         with matmul_precision(self.cfg.matmul_precision):
-            a = self.actor.mean_action(x) if deterministic else self.actor(x)[0]
+            a = self.actor.mean_action(x) if deterministic else self.actor.sample(x)
         return a.cpu().numpy()
 
     @property

@@ -61,3 +61,19 @@ def test_unknown_precision_is_a_config_error():
     cfg.sac.matmul_precision = "bf16"
     with pytest.raises(ConfigError, match="bf16"):
         cfg.validate()
+
+
+def test_acting_draws_the_same_action_as_the_training_sample():
+    """act() skips the log-probability but must consume the same random numbers and give the same action."""
+    torch.manual_seed(0)
+    agent = SAC(D, A, SACConfig(hidden=(32, 32)))
+    x = make_batch(3).obs
+    rng = torch.get_rng_state()
+    with matmul_precision(agent.cfg.matmul_precision):
+        a_train, _ = agent.actor(x)
+    after = torch.get_rng_state()
+    torch.set_rng_state(rng)
+    a_act = agent.act(x.numpy())
+    assert torch.equal(torch.get_rng_state(), after)
+    np.testing.assert_array_equal(a_act, a_train.detach().numpy())
+    assert not np.array_equal(a_act, agent.act(x.numpy(), deterministic=True))
