@@ -229,6 +229,42 @@ def interleaved(fns: dict, iters: int, rounds: int = 10, warmup: int = 10) -> di
     return {k: (1e3 * float(np.median(v)), 1e3 * float(np.mean(v))) for k, v in times.items()}
 
 
+def matmul_flops(fn) -> float:
+    """Matmul FLOPs of one call of ``fn`` (torch profiler's count: mm, addmm, bmm, baddbmm)."""
+    from torch.profiler import ProfilerActivity, profile as tprofile
+    with tprofile(activities=[ProfilerActivity.CPU], with_flops=True) as prof:
+        fn()
+    return float(sum(e.flops for e in prof.key_averages() if e.flops and "mm" in e.key))
+
+
+def matmul_rate(precision: str, n: int = 256, iters: int = 300) -> float:
+    """This CPU's fp32 matmul throughput (GFLOP/s) on the update's dominant shape, (n x n) @ (n x n)."""
+    from maniskill_dualher.sac import matmul_precision
+    a, b = torch.randn(n, n), torch.randn(n, n)
+    with matmul_precision(precision):
+        for _ in range(20):
+            a @ b
+        ts = []
+        for _ in range(iters):
+            t0 = time.perf_counter()
+            a @ b
+            ts.append(time.perf_counter() - t0)
+    return 2 * n ** 3 / float(np.median(ts)) / 1e9
+
+
+def cpu_name() -> str:
+    name = "?"
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    name = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    return f"{name}, torch CPU capability {torch.backends.cpu.get_cpu_capability()}"
+
+
 def loadavg() -> str:
     try:
         return " ".join(f"{x:.2f}" for x in os.getloadavg()) + f" (cores: {os.cpu_count()})"
@@ -243,6 +279,7 @@ def bench(args) -> None:
     print(f"# train_speed: {ENV_ID}, {EP_LEN}-step episodes, batch 256, 256x256, 1 update/step, "
           f"warm-up {LEARNING_STARTS}+{LEARN_WARMUP} steps, timed {args.steps} steps each in chunks of {args.chunk}, "
           f"torch threads {args.threads}")
+    print(f"# cpu: {cpu_name()}")
     print(f"# load average at start: {loadavg()}")
 
     loop = [Ours("sac_her_per", v, args.threads, tmp) for v in args.variants]
@@ -310,8 +347,37 @@ def bench(args) -> None:
         for c in loop[:-len(sb3)]:
             print(f"{c.name} / {b.name}, env steps/s: {sps[c.name] / sps[b.name]:.2f}x   "
                   f"(update cost SB3/ours: {upd[b.name][0] / upd[c.name][0]:.2f}x)")
+    floors(loop, sb3, sps, nou, upd, {c.name: c.update_fns()[0] for c in loop})
     for c in loop:
         c.close()
+
+
+def floors(loop, sb3, sps, nou, upd, full_fns) -> None:
+    """How far each update is from this CPU's matmul floor, and what that allows for the speed ratio.
+
+    An update cannot cost less than its matmul FLOPs at the CPU's matmul rate; an env step of the loop
+    cannot cost less than that floor plus the loop's no-update step. So ours/SB3 in env steps/s is at most
+    (SB3's measured step time) / (our floor + our no-update step time), whatever else is optimised."""
+    print()
+    print("matmul floor (FLOPs counted by torch's profiler; rate = this CPU's (256x256)@(256x256) fp32 matmul)")
+    hdr = f"{'contender':34s} {'GFLOP/update':>12s} {'GFLOP/s':>8s} {'floor ms':>9s} {'update ms':>10s} {'matmul share':>13s}"
+    print(hdr)
+    print("-" * len(hdr))
+    rates = {}
+    floor_ms = {}
+    for c in loop:
+        prec = "medium" if "medium" in c.name else "highest"
+        if prec not in rates:
+            rates[prec] = matmul_rate(prec)
+        gf = matmul_flops(full_fns[c.name]) / 1e9
+        floor_ms[c.name] = 1e3 * gf / rates[prec]
+        u = upd[c.name][0]
+        print(f"{c.name:34s} {gf:12.3f} {rates[prec]:8.1f} {floor_ms[c.name]:9.2f} {u:10.2f} {100 * floor_ms[c.name] / u:12.0f}%")
+    ours = [c for c in loop if c not in sb3]
+    for b in sb3[:1]:
+        for c in ours:
+            ceiling = (1.0 / sps[b.name]) / (floor_ms[c.name] / 1e3 + 1.0 / nou[c.name])
+            print(f"ceiling of {c.name} / {b.name} on this CPU (update = pure matmul): {ceiling:.2f}x")
 
 
 # --------------------------------------------------------------------------- profile

@@ -1,20 +1,8 @@
-"""Helpers shared by the hinge-task tests (CloseBox, CloseMicrowave): poke an articulation's state, read contacts."""
+"""Helpers shared by the hinge-task tests (CloseBox, CloseMicrowave): set a hinge task's state, read contacts."""
 import numpy as np
 import torch
 
 from mani_skill.utils.structs import Pose
-
-
-def set_articulation_state(art, lift: float, angle=None, center=None, yaw=None) -> None:
-    """Overwrite the hinge angle and/or the root pose (xy centre, yaw; z = lift) of a single CPU env."""
-    if center is not None:
-        yaw = 0.0 if yaw is None else yaw
-        p = torch.tensor([[center[0], center[1], lift]], dtype=torch.float32)
-        q = torch.tensor([[np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)]], dtype=torch.float32)
-        art.set_pose(Pose.create_from_pq(p=p, q=q))
-    if angle is not None:
-        art.set_qpos(torch.tensor([[angle]], dtype=torch.float32))
-        art.set_qvel(torch.zeros((1, 1)))
 
 
 def robot_contact_force(env, art) -> float:
@@ -23,3 +11,19 @@ def robot_contact_force(env, art) -> float:
     forces = [torch.linalg.norm(base.scene.get_pairwise_contact_forces(link, part), dim=-1).max()
               for link in base.agent.robot.links for part in art.links]
     return float(torch.stack(forces).max())
+
+
+def set_state(env, angle=None, center=None, yaw=None) -> None:
+    """Overwrite a hinge task's hinge angle and/or body pose in the current (CPU, single) episode; a moved
+    body gets its desired goal re-cached, as a reset would."""
+    base = env.unwrapped
+    art = base.articulation
+    if center is not None:
+        yaw = 0.0 if yaw is None else yaw
+        p = torch.tensor([[center[0], center[1], base.BODY_LIFT]], dtype=torch.float32)
+        q = torch.tensor([[np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)]], dtype=torch.float32)
+        art.set_pose(Pose.create_from_pq(p=p, q=q))
+        base._refresh_goal_cache()
+    if angle is not None:
+        art.set_qpos(torch.tensor([[angle]], dtype=torch.float32))
+        art.set_qvel(torch.zeros((1, 1)))
