@@ -23,6 +23,7 @@ Both use ``torch.set_num_threads(--threads)``. Episodes are 50 steps, successes 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import sys
 import tempfile
@@ -229,10 +230,24 @@ def interleaved(fns: dict, iters: int, rounds: int = 10, warmup: int = 10) -> di
     return {k: (1e3 * float(np.median(v)), 1e3 * float(np.mean(v))) for k, v in times.items()}
 
 
+@contextlib.contextmanager
+def quiet_stderr():
+    """Silence the profiler's native start/stop lines (written to fd 2 by C++, not through Python)."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with open(os.devnull, "w") as null:
+            os.dup2(null.fileno(), 2)
+            yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+
+
 def matmul_flops(fn) -> float:
     """Matmul FLOPs of one call of ``fn`` (torch profiler's count: mm, addmm, bmm, baddbmm)."""
     from torch.profiler import ProfilerActivity, profile as tprofile
-    with tprofile(activities=[ProfilerActivity.CPU], with_flops=True) as prof:
+    with quiet_stderr(), tprofile(activities=[ProfilerActivity.CPU], with_flops=True) as prof:
         fn()
     return float(sum(e.flops for e in prof.key_averages() if e.flops and "mm" in e.key))
 
@@ -404,7 +419,7 @@ def profile(args) -> None:
             agent.update(batch)
         ms = 1e3 * (time.perf_counter() - t0) / args.updates
         print(f"\n## SAC.update ({variant}): {ms:.2f} ms/update wall (threads {args.threads}, load {loadavg()})")
-        with tprofile(activities=[ProfilerActivity.CPU]) as prof:
+        with quiet_stderr(), tprofile(activities=[ProfilerActivity.CPU]) as prof:
             for _ in range(args.updates):
                 agent.update(batch)
         ka = prof.key_averages()
