@@ -1,24 +1,30 @@
 """Training-loop speed: env steps/s of a full SAC loop (1 gradient update per env step, batch 256,
-256x256 networks, after a warm-up) for our ``sac_her_per`` on ReachTarget-v1 beside Stable-Baselines3's
-SAC + HerReplayBuffer (future, n_sampled_goal=4) on the same task and settings, in one process; plus the
-per-update cost (ms) of each, and of ours for every method (sac, sac_her_per, dual_buffer) x SAC variant
-(paper, modern).
+256x256 networks, after a warm-up) for our ``sac_her_per`` on ReachTarget-v1 beside two peers on the same
+task and settings, in one process: Stable-Baselines3's SAC + HerReplayBuffer (future, n_sampled_goal=4) and
+SBX's (JAX; PyPI ``sbx-rl``, optional: skipped with one line if not importable) SAC with the same SB3
+HerReplayBuffer; plus the per-update cost (ms) of each, and of ours for every method (sac, sac_her_per,
+dual_buffer) x SAC variant (paper, modern). Peers: lr 3e-4, tau 0.005, gamma 0.99 (SB3's defaults, also
+SBX's), buffer 1e6, learning_starts 1000, train_freq 1, gradient_steps 1.
 
 Matmul precision. Ours runs with its default ``matmul_precision="medium"`` (oneDNN may use bf16 kernels
 for fp32 matmuls; results stay at fp32 rounding level, tests/test_sac.py) and, as a control, with
 "highest" (strict fp32). SB3 runs as users get it ("highest", torch's default) and with the same "medium"
 switch set around its calls, so the table separates what the setting buys from what the implementation
-buys.
+buys. SBX runs as users get it (JAX, fp32 on CPU).
 
-    python bench/train_speed.py [--steps 2000] [--threads 1] [--chunk 500] [--updates 300]
+    python bench/train_speed.py [--steps 2000] [--threads 1] [--chunk 500] [--updates 300] [--no-sbx]
     python bench/train_speed.py --profile [--variant paper] [--updates 200]   # where one SAC.update goes
 
-Method. Each contender warms up untimed (``learning_starts`` = 1000 random steps, then 100 learning steps).
-Then the timed env steps are run in alternating chunks (ours paper, ours modern, SB3, ours paper, ...) so the
-contenders share the shared machine's load. Ours is our real loop: ``Trainer.run(stop_at=...)`` (evaluation
-and checkpoints pushed beyond the run; the stop-checkpoint is replaced by a time stamp, so a chunk is timed
-from the call to the end of its last episode). SB3 is ``model.learn(chunk, reset_num_timesteps=False)``.
-Both use ``torch.set_num_threads(--threads)``. Episodes are 50 steps, successes do not end them (both).
+Method. Each contender warms up untimed (``learning_starts`` = 1000 random steps, then 100 learning steps;
+for SBX that includes the JIT compilation). Then the timed env steps are run in alternating chunks (ours
+paper, ours modern, SB3, SBX, ours paper, ...) so the contenders share the shared machine's load. Ours is
+our real loop: ``Trainer.run(stop_at=...)`` (evaluation and checkpoints pushed beyond the run; the
+stop-checkpoint is replaced by a time stamp, so a chunk is timed from the call to the end of its last
+episode). SB3 and SBX are ``model.learn(chunk, reset_num_timesteps=False)``. Threads: torch uses
+``torch.set_num_threads(--threads)``; OpenMP/MKL get ``--threads`` and, with ``--threads 1``, JAX gets one
+thread (``XLA_FLAGS``), set before anything loads (bench/_peers.py). Episodes are 50 steps, successes do not
+end them (all). The matmul-floor section covers the torch contenders only (it counts FLOPs with torch's
+profiler).
 """
 from __future__ import annotations
 
@@ -31,24 +37,15 @@ import time
 import warnings
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
-
-
-def _early_threads() -> int:
-    for i, a in enumerate(sys.argv):
-        if a == "--threads" and i + 1 < len(sys.argv):
-            return int(sys.argv[i + 1])
-        if a.startswith("--threads="):
-            return int(a.split("=", 1)[1])
-    return 1
-
-
-os.environ.setdefault("OMP_NUM_THREADS", str(_early_threads()))
-os.environ.setdefault("MKL_NUM_THREADS", str(_early_threads()))
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 warnings.filterwarnings("ignore")
+
+# first: pins OpenMP/MKL threads to --threads (default 1) and JAX to one thread, before numpy/torch/jax load
+from _peers import (GoalDictEnv, cpu_name, lib_version, loadavg, make_peer_sac, sbx_missing,  # noqa: E402
+                    thread_info)
 
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
-import gymnasium as gym  # noqa: E402
 
 ENV_ID = "ReachTarget-v1"
 EP_LEN = 50
@@ -61,11 +58,15 @@ ENV_KW = dict(sim_backend="physx_cpu", render_backend="none", obs_mode="state",
 
 # --------------------------------------------------------------------------- ours
 def our_config(method: str, variant: str, threads: int, seed: int = 0, precision: str = "medium"):
+    import dataclasses
     from maniskill_dualher.config import ReplayConfig, RunConfig, SACConfig
+    extra = {}
+    if "terminate_on_success" in {f.name for f in dataclasses.fields(RunConfig)}:
+        extra["terminate_on_success"] = False  # fixed 50-step episodes, as the peers' here
     return RunConfig(
         env_id=ENV_ID, method=method, seed=seed, total_steps=10**9, max_episode_steps=EP_LEN,
         control_mode=ENV_KW["control_mode"], sim_backend=ENV_KW["sim_backend"], reward_mode="sparse",
-        eval_every=10**9, checkpoint_every=10**9, torch_threads=threads,
+        eval_every=10**9, checkpoint_every=10**9, torch_threads=threads, **extra,
         sac=SACConfig(variant=variant, batch_size=256, hidden=(256, 256), updates_per_step=1.0,
                       random_steps=LEARNING_STARTS, learning_starts=LEARNING_STARTS, matmul_precision=precision),
         replay=ReplayConfig(capacity=CAPACITY, her_strategy="future", her_k=4,
@@ -110,11 +111,13 @@ class Ours:
         return s0 / dt
 
     def update_fns(self):
+        import inspect
         logs = {}
         tr = self.tr
+        args = (logs,) if inspect.signature(tr._update).parameters else ()  # older loops took a logs dict
 
         def full():  # exactly the loop's update: sample + SAC.update + priority write-back
-            tr._update(logs)
+            tr._update(*args)
         batch = tr.method.sample(tr.cfg.sac.batch_size)
 
         def sac_only():
@@ -126,59 +129,26 @@ class Ours:
 
 
 # --------------------------------------------------------------------------- SB3
-class GoalDictEnv(gym.Env):
-    """Our task as a single-env gymnasium GoalEnv: Dict obs {observation, achieved_goal, desired_goal} (numpy),
-    ``compute_reward`` delegating to the task's batched one. Successes do not terminate (fixed 50-step episodes)."""
-
-    metadata = {"render_modes": []}
-
-    def __init__(self, env_id: str = ENV_ID):
-        import maniskill_dualher  # noqa: F401  (registers the tasks)
-        from mani_skill.utils.wrappers.gymnasium import CPUGymWrapper
-        from tasks.common import GOAL_DIM, OBS_DIM
-        self.env = CPUGymWrapper(gym.make(env_id, **ENV_KW), ignore_terminations=True)
-        self.task = self.env.unwrapped
-        self.o, self.g = OBS_DIM, GOAL_DIM
-        box = lambda n: gym.spaces.Box(-np.inf, np.inf, (n,), np.float32)  # noqa: E731
-        self.observation_space = gym.spaces.Dict(
-            {"observation": box(OBS_DIM), "achieved_goal": box(GOAL_DIM), "desired_goal": box(GOAL_DIM)})
-        self.action_space = self.env.action_space
-
-    def _dict(self, flat):
-        flat = np.asarray(flat, dtype=np.float32).reshape(-1)
-        o, g = self.o, self.g
-        return {"observation": flat[:o], "achieved_goal": flat[o:o + g], "desired_goal": flat[o + g:o + 2 * g]}
-
-    def reset(self, *, seed=None, options=None):
-        obs, info = self.env.reset(seed=seed, options=options)
-        return self._dict(obs), {}
-
-    def step(self, action):
-        obs, rew, term, trunc, info = self.env.step(action)
-        succ = bool(info.get("success", False))
-        return self._dict(obs), float(rew), bool(term), bool(trunc), {"is_success": succ}
-
-    def compute_reward(self, achieved_goal, desired_goal, info):
-        return np.asarray(self.task.compute_reward(achieved_goal, desired_goal, {}), dtype=np.float32)
-
-    def close(self):
-        self.env.close()
+# same settings for both peers (SB3's SAC defaults for lr, tau, gamma; SBX has the same defaults)
+PEER_HP = dict(net_arch=[256, 256], learning_rate=3e-4, tau=0.005, gamma=0.99, batch_size=256,
+               buffer_size=CAPACITY, learning_starts=LEARNING_STARTS, n_sampled_goal=4, train_freq=1,
+               gradient_steps=1)
 
 
-class SB3:
-    def __init__(self, threads: int, seed: int = 0, precision: str = "highest"):
-        from stable_baselines3 import SAC, HerReplayBuffer
-        from maniskill_dualher.sac import matmul_precision
-        self.name = f"SB3 SAC + HER ({precision})"
-        self.precision = lambda: matmul_precision(precision)
+class Peer:
+    """A peer SAC + SB3's HerReplayBuffer (future, 4 goals) on the same task and settings, driven with
+    ``model.learn(n, reset_num_timesteps=False)``."""
+
+    lib = "?"
+
+    def __init__(self, threads: int, seed: int = 0):
         self.threads = threads
         torch.set_num_threads(threads)
-        self.env = GoalDictEnv()
-        self.model = SAC(
-            "MultiInputPolicy", self.env, replay_buffer_class=HerReplayBuffer,
-            replay_buffer_kwargs=dict(n_sampled_goal=4, goal_selection_strategy="future"),
-            buffer_size=CAPACITY, learning_starts=LEARNING_STARTS, batch_size=256, train_freq=1,
-            gradient_steps=1, policy_kwargs=dict(net_arch=[256, 256]), device="cpu", seed=seed, verbose=0)
+        self.env = GoalDictEnv(ENV_ID, EP_LEN, control_mode=ENV_KW["control_mode"], reward_mode="sparse")
+        self.model = make_peer_sac(self.lib, self.env, seed, **PEER_HP)
+
+    def precision(self):
+        return contextlib.nullcontext()
 
     @property
     def steps(self) -> int:
@@ -194,14 +164,14 @@ class SB3:
     def warmup(self) -> float:
         dt = self.run(LEARNING_STARTS)
         s0 = self.steps
-        self.run(LEARN_WARMUP)
-        assert self.model._n_updates > 0, "SB3 made no gradient updates after warm-up"
+        self.run(LEARN_WARMUP)  # SBX: includes the JIT compilation of its update
+        assert self.model._n_updates > 0, f"{self.name} made no gradient updates after warm-up"
         return s0 / dt
 
     def update_fns(self):
         m = self.model
 
-        def full():  # SB3's train step: HER sample (relabel on the fly) + SAC update
+        def full():  # the library's train step: HER sample (relabel on the fly) + SAC update
             with self.precision():
                 m.train(gradient_steps=1, batch_size=256)
 
@@ -211,6 +181,27 @@ class SB3:
 
     def close(self):
         self.model.get_env().close()
+
+
+class SB3(Peer):
+    lib = "sb3"
+
+    def __init__(self, threads: int, seed: int = 0, precision: str = "highest"):
+        from maniskill_dualher.sac import matmul_precision
+        self.name = f"SB3 SAC + HER ({precision})"
+        self._precision = precision
+        self._matmul_precision = matmul_precision
+        super().__init__(threads, seed)
+
+    def precision(self):
+        return self._matmul_precision(self._precision)
+
+
+class SBX(Peer):
+    """SBX (JAX; PyPI sbx-rl) SAC with SB3's HerReplayBuffer. Its ``train`` ends in ``.item()`` on the
+    losses, so a timed call includes the device work (no async dispatch left over)."""
+    lib = "sbx"
+    name = "SBX SAC + HER (JAX)"
 
 
 # --------------------------------------------------------------------------- timing helpers
@@ -267,26 +258,6 @@ def matmul_rate(precision: str, n: int = 256, iters: int = 300) -> float:
     return 2 * n ** 3 / float(np.median(ts)) / 1e9
 
 
-def cpu_name() -> str:
-    name = "?"
-    try:
-        with open("/proc/cpuinfo") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    name = line.split(":", 1)[1].strip()
-                    break
-    except OSError:
-        pass
-    return f"{name}, torch CPU capability {torch.backends.cpu.get_cpu_capability()}"
-
-
-def loadavg() -> str:
-    try:
-        return " ".join(f"{x:.2f}" for x in os.getloadavg()) + f" (cores: {os.cpu_count()})"
-    except OSError:
-        return "?"
-
-
 # --------------------------------------------------------------------------- main bench
 def bench(args) -> None:
     torch.set_num_threads(args.threads)
@@ -295,13 +266,23 @@ def bench(args) -> None:
           f"warm-up {LEARNING_STARTS}+{LEARN_WARMUP} steps, timed {args.steps} steps each in chunks of {args.chunk}, "
           f"torch threads {args.threads}")
     print(f"# cpu: {cpu_name()}")
+    print(f"# threads: {thread_info()}")
     print(f"# load average at start: {loadavg()}")
 
     loop = [Ours("sac_her_per", v, args.threads, tmp) for v in args.variants]
     if not args.skip_controls:
         loop.append(Ours("sac_her_per", args.variants[-1], args.threads, tmp, precision="highest"))
     sb3 = [SB3(args.threads)] + ([] if args.skip_controls else [SB3(args.threads, precision="medium")])
-    loop += sb3
+    why = "--no-sbx" if args.no_sbx else sbx_missing()
+    if why is None:
+        sbx = [SBX(args.threads)]
+        print(f"# peers: {lib_version('sb3')}; {lib_version('sbx')}")
+    else:
+        sbx = []
+        print(f"# SBX skipped ({why}); pip install sbx-rl to add it")
+    ours = list(loop)
+    peers = sb3 + sbx
+    loop += peers
     nou = {}
     for c in loop:
         nou[c.name] = c.warmup()
@@ -354,15 +335,17 @@ def bench(args) -> None:
         p = upd[n + " #part"]
         print(f"{n:34s} {s} {w} {u[0]:10.2f} / {u[1]:8.2f} {p[0]:14.2f}")
     print("  update ms = one whole update of the training loop (ours: sample + SAC.update + priority write-back; "
-          "SB3: model.train(1) incl. HER sampling)")
-    print("  part ms   = ours: SAC.update alone on a fixed batch; SB3: HerReplayBuffer.sample(256) alone")
+          "SB3/SBX: model.train(1) incl. HER sampling)")
+    print("  part ms   = ours: SAC.update alone on a fixed batch; SB3/SBX: HerReplayBuffer.sample(256) alone")
     print(f"  timed env steps: " + ", ".join(f"{k}: {done[k]} in {elapsed[k]:.1f} s" for k in done))
     print()
-    for b in sb3:
-        for c in loop[:-len(sb3)]:
+    print("env steps/s, ours vs peers (" + ", ".join(f"{c.name} {sps[c.name]:.1f}" for c in peers) + ")")
+    for b in peers:
+        for c in ours:
             print(f"{c.name} / {b.name}, env steps/s: {sps[c.name] / sps[b.name]:.2f}x   "
-                  f"(update cost SB3/ours: {upd[b.name][0] / upd[c.name][0]:.2f}x)")
-    floors(loop, sb3, sps, nou, upd, {c.name: c.update_fns()[0] for c in loop})
+                  f"(update cost {b.lib.upper()}/ours: {upd[b.name][0] / upd[c.name][0]:.2f}x)")
+    torch_loop = [c for c in loop if c not in sbx]  # the matmul floor is counted by torch's profiler
+    floors(torch_loop, sb3, sps, nou, upd, {c.name: c.update_fns()[0] for c in torch_loop})
     for c in loop:
         c.close()
 
@@ -460,6 +443,7 @@ def main(argv=None) -> int:
     p.add_argument("--skip-methods", action="store_true", help="update bench: skip sac and dual_buffer")
     p.add_argument("--skip-controls", action="store_true",
                    help="skip the precision controls (ours at 'highest', SB3 at 'medium')")
+    p.add_argument("--no-sbx", action="store_true", help="leave out the SBX contender")
     p.add_argument("--profile", action="store_true", help="profile SAC.update alone and exit")
     p.add_argument("--rows", type=int, default=25, help="--profile: rows of the op table")
     args = p.parse_args(argv)

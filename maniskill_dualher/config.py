@@ -14,11 +14,33 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 from dataclasses import dataclass, field
 from typing import Any, Optional, Tuple
 
 
 MATMUL_PRECISIONS = ("highest", "high", "medium")
+UPDATE_SCHEDULES = ("step", "episode")
+SUCCESS_BUFFER_MODES = ("transitions", "episodes")
+SIM_BACKENDS = ("physx_cpu", "physx_cuda")
+OUR_TASKS = ("ReachTarget-v1", "CloseBox-v1", "CloseMicrowave-v1")
+
+
+def check_device(device: str, what: Optional[str] = None) -> None:
+    """A torch device string that exists on this machine, or one ConfigError line naming it."""
+    import torch
+    what = what or f"device {device!r}"
+    try:
+        dev = torch.device(device)
+    except (RuntimeError, TypeError):
+        raise ConfigError(f"unknown device {device!r} (e.g. cpu, cuda, cuda:0)") from None
+    if dev.type == "cuda":
+        if not torch.cuda.is_available():
+            raise ConfigError(f"{what} needs a CUDA GPU, but torch finds none on this machine")
+        if dev.index is not None and dev.index >= torch.cuda.device_count():
+            raise ConfigError(f"device {device!r}: this machine has {torch.cuda.device_count()} CUDA devices")
+    elif dev.type not in ("cpu", "cuda"):
+        raise ConfigError(f"unsupported device {device!r} (use cpu or cuda)")
 
 
 class ConfigError(ValueError):
@@ -38,7 +60,13 @@ class SACConfig:
     hidden: Tuple[int, ...] = (256, 256)  # not in the paper
     tau: float = 0.005                    # Polyak rate of the target network(s); not in the paper
     batch_size: int = 256                 # Table 3
-    updates_per_step: float = 1.0         # gradient updates per environment step (UTD); not in the paper
+    # When gradient updates happen. "step": ``updates_per_step`` per env step (UTD, summed over parallel envs;
+    # SB3/CleanRL). "episode": ``updates_per_episode`` each time an episode ends (the paper's Algorithm 1:
+    # "perform one step network update" once per episode loop).
+    update_schedule: str = "step"
+    updates_per_step: float = 1.0         # gradient updates per environment step (schedule "step")
+    updates_per_episode: float = 1.0      # gradient updates per finished episode (schedule "episode"; Alg. 1: 1)
+    log_every: int = 100                  # write losses/alpha/entropy/Q to TensorBoard every this many updates
     random_steps: int = 5_000             # uniform random actions first; the paper used 100k
     learning_starts: int = 1_000          # no updates before this many env steps; not in the paper
     # Options against PER's known harm to actor-critic (LAP/PAL, LA3P); off by default.
@@ -66,6 +94,11 @@ class ReplayConfig:
     ratio: Tuple[float, float] = (0.6, 0.4)  # dual buffer: P(batch from R), P(batch from E); paper's best
     dual_mode: str = "choose"             # "choose": whole batch from R or E; "split": every batch split r:e
     solver_demos: int = 0                 # seed E with this many successful scripted-solver episodes (not in the paper)
+    # What enters the dual buffer's success buffer E. "transitions" (default, Algorithm 1: "if r_t = 1 then
+    # store in E"): real transitions with reward 1; with episodes that end on success that is one row per
+    # successful episode. "episodes" (section 4.2: E "only contains successful trajectories"): every real
+    # transition of an episode that succeeded.
+    success_buffer: str = "transitions"
 
 
 @dataclass
@@ -75,6 +108,12 @@ class RunConfig:
     seed: int = 0
     total_steps: int = 30_000             # environment steps (summed over parallel envs)
     max_episode_steps: Optional[int] = None  # None: the task's default (150, Table 3)
+    # Paper 4.1: "An episode terminated either when the maximum timestep was reached or the task was
+    # completed." True: success ends the episode and its last transition is terminal (no bootstrap; HER's
+    # relabeled transitions are terminal where their relabeled goal is reached). False: fixed-length
+    # episodes, success is not terminal (the Fetch/HER convention). Plain gymnasium envs always end on their
+    # own ``terminated``.
+    terminate_on_success: bool = True
     control_mode: Optional[str] = None    # None: the task's default (pd_joint_delta_pos)
     sim_backend: str = "physx_cpu"
     reward_mode: str = "sparse"           # ManiSkill reward mode; the paper's setting is sparse (+1 on success)
@@ -106,6 +145,14 @@ class RunConfig:
             raise ConfigError(f"total_steps must be > 0, got {self.total_steps}")
         if self.num_envs < 1:
             raise ConfigError(f"num_envs must be >= 1, got {self.num_envs}")
+        for name, v in (("lr", s.lr), ("gamma", s.gamma), ("alpha", s.alpha), ("tau", s.tau),
+                        ("updates_per_step", s.updates_per_step), ("updates_per_episode", s.updates_per_episode),
+                        ("priority_exponent", r.priority_exponent), ("is_exponent", r.is_exponent),
+                        ("priority_eps", r.priority_eps)):
+            if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v):
+                raise ConfigError(f"{name} must be a finite number, got {v!r}")
+        if s.target_entropy is not None and not math.isfinite(s.target_entropy):
+            raise ConfigError(f"target_entropy must be a finite number, got {s.target_entropy!r}")
         if s.variant not in ("paper", "modern"):
             raise ConfigError(f"unknown SAC variant {s.variant!r} (choose 'paper' or 'modern')")
         if s.matmul_precision not in MATMUL_PRECISIONS:
@@ -123,6 +170,34 @@ class RunConfig:
             raise ConfigError(f"gamma must be in (0, 1], got {s.gamma}")
         if r.her_k < 0:
             raise ConfigError(f"her_k must be >= 0, got {r.her_k}")
+        if s.update_schedule not in UPDATE_SCHEDULES:
+            raise ConfigError(f"unknown update_schedule {s.update_schedule!r} (choose {' or '.join(UPDATE_SCHEDULES)})")
+        if s.updates_per_step <= 0 or s.updates_per_episode <= 0:
+            raise ConfigError(f"updates_per_step and updates_per_episode must be > 0, got "
+                              f"{s.updates_per_step}, {s.updates_per_episode}")
+        if not 0 < s.tau <= 1:
+            raise ConfigError(f"tau must be in (0, 1], got {s.tau}")
+        if s.log_every < 1:
+            raise ConfigError(f"log_every must be >= 1, got {s.log_every}")
+        if r.success_buffer not in SUCCESS_BUFFER_MODES:
+            raise ConfigError(f"unknown success_buffer {r.success_buffer!r} (choose {' or '.join(SUCCESS_BUFFER_MODES)})")
+        if self.max_episode_steps is not None and self.max_episode_steps < 1:
+            raise ConfigError(f"max_episode_steps must be >= 1, got {self.max_episode_steps}")
+        if not s.hidden or min(s.hidden) < 1:
+            raise ConfigError(f"hidden must be positive layer sizes, got {s.hidden}")
+        if self.eval_every < 1 or self.eval_episodes < 1 or self.checkpoint_every < 1:
+            raise ConfigError(f"eval_every, eval_episodes and checkpoint_every must be >= 1, got "
+                              f"{self.eval_every}, {self.eval_episodes}, {self.checkpoint_every}")
+        if self.torch_threads < 1:
+            raise ConfigError(f"torch_threads must be >= 1, got {self.torch_threads}")
+        if self.sim_backend not in SIM_BACKENDS:
+            raise ConfigError(f"unknown sim_backend {self.sim_backend!r} (choose {' or '.join(SIM_BACKENDS)})")
+        if self.sim_backend == "physx_cpu" and self.num_envs != 1 and self.env_id in OUR_TASKS:
+            raise ConfigError(f"num_envs={self.num_envs} needs sim_backend='physx_cuda'; "
+                              "ManiSkill's CPU simulation runs one env per process")
+        check_device(self.device)
+        if self.sim_backend == "physx_cuda":
+            check_device("cuda", what="sim_backend='physx_cuda'")
         return self
 
 

@@ -1,8 +1,15 @@
 """The paper's method (Algorithm 1): prioritized buffer R + uniform success buffer E.
 
 R (prioritized, new rows at max priority) holds real and k hindsight copies of every
-transition. E (uniform) holds only REAL transitions whose reward is 1 (line "if r_t = 1
-then store in E"); hindsight successes never enter E. Sampling:
+transition. E (uniform) holds only REAL transitions, never hindsight ones:
+
+* ``success_buffer="transitions"`` (default, Algorithm 1: "if r_t = 1 then store in E"): the real
+  transitions with reward 1. With episodes that end on success this is one row per successful
+  episode, the step that reached the goal;
+* ``success_buffer="episodes"`` (section 4.2: E "only contains successful trajectories"): every real
+  transition of an episode in which the task succeeded.
+
+Sampling:
 
 * ``dual_mode="choose"`` (Algorithm 1): the whole mini-batch comes from R with probability
   r, from E with probability e = 1 - r;
@@ -23,13 +30,13 @@ from .replay.her import concat_rows, real_transitions, relabel
 from .replay.method import BufferMethod
 
 
-def _successes(rows: Dict[str, np.ndarray]) -> Dict[str, np.ndarray]:
-    keep = np.isclose(rows["reward"], 1.0)
+def _select(rows: Dict[str, np.ndarray], keep: np.ndarray) -> Dict[str, np.ndarray]:
     return {k: v[keep] for k, v in rows.items()}
 
 
 class DualBufferReplay(BufferMethod):
     uses_goals = True
+    accepts_demos = True
 
     def __init__(self, cfg, spec, rng, device="cpu"):
         super().__init__(cfg, spec, rng, device)
@@ -60,18 +67,22 @@ class DualBufferReplay(BufferMethod):
         else:
             rows = real
         self.main.add(rows)  # Algorithm 1: real + k hindsight copies, all at max priority
-        succ = _successes(real)
-        if len(succ["reward"]):
-            self.E.add(succ)
+        self._add_to_E(ep, real)
+
+    def _add_to_E(self, ep: Episode, real: Dict[str, np.ndarray]) -> None:
+        if self.rcfg.success_buffer == "episodes":  # every real row of each env's successful episode
+            ok = np.broadcast_to(np.asarray(ep.success, bool).any(0), ep.reward.shape).reshape(-1)
+        else:  # real reward-1 transitions (Algorithm 1)
+            ok = np.isclose(real["reward"], 1.0)
+        if ok.any():
+            self.E.add(_select(real, ok))
 
     def add_demo_episode(self, ep: Episode) -> None:
-        """Seed E (only) with the real reward-1 transitions of e.g. a scripted-solver episode."""
+        """Seed E (only) with a scripted-solver episode's successes, chosen as for real episodes."""
         self._check_goal_episode(ep)
         real = real_transitions(ep)
         self._check_rows(real)
-        succ = _successes(real)
-        if len(succ["reward"]):
-            self.E.add(succ)
+        self._add_to_E(ep, real)
 
     def sample(self, batch_size: Optional[int] = None) -> Batch:
         B = int(batch_size or self.batch_size)

@@ -37,6 +37,11 @@ class EnvSpec:
         """Width of the networks' input: observation ‖ desired goal."""
         return self.obs_dim + self.goal_dim
 
+    @property
+    def flat_dim(self) -> int:
+        """Width of the flat env observation: observation ‖ achieved goal ‖ desired goal."""
+        return self.obs_dim + 2 * self.goal_dim
+
 
 def train_episode_seed(run_seed: int, episode: int) -> int:
     """Deterministic, distinct reset seed per training episode (so a resumed run replays exactly)."""
@@ -64,13 +69,17 @@ class BatchEnv:
         if self.is_maniskill:
             self.env = self._make_maniskill(cfg)
         else:
-            if cfg.num_envs != 1:
-                raise ConfigError(f"num_envs={cfg.num_envs}: plain gymnasium envs run one at a time here")
             kw = {}
             if cfg.max_episode_steps is not None:
                 kw["max_episode_steps"] = cfg.max_episode_steps
             self.env = gym.make(env_id, **kw)
+            n = int(getattr(self.env.unwrapped, "num_envs", 1))
+            if n != cfg.num_envs:
+                raise ConfigError(f"num_envs={cfg.num_envs}: {env_id!r} is a {'batched ' if n > 1 else ''}env "
+                                  f"of {n} (plain gymnasium envs run one at a time here)")
         self.unwrapped = self.env.unwrapped
+        # batched plain envs (tests' batched goal env) take actions (N, A) and reset per env like ManiSkill
+        self._batched = self.is_maniskill or cfg.num_envs > 1
         space = getattr(self.unwrapped, "single_action_space", None) or self.env.action_space
         if not isinstance(space, gym.spaces.Box):
             raise ConfigError(f"environment {env_id!r} has a {type(space).__name__} action space; SAC needs a Box")
@@ -109,9 +118,6 @@ class BatchEnv:
             kw["control_mode"] = cfg.control_mode
         if cfg.max_episode_steps is not None:
             kw["max_episode_steps"] = cfg.max_episode_steps
-        if cfg.sim_backend == "physx_cpu" and cfg.num_envs != 1:
-            raise ConfigError(f"num_envs={cfg.num_envs} needs GPU simulation (sim_backend='physx_cuda'); "
-                              "ManiSkill's CPU simulation runs one env per process")
         try:
             return gym.make(cfg.env_id, **kw)
         except (ValueError, AssertionError, KeyError, NotImplementedError) as e:
@@ -124,7 +130,7 @@ class BatchEnv:
 
     def _flat(self, obs) -> np.ndarray:
         if self._dict_goal:
-            parts = [np.asarray(obs[k], dtype=np.float32).reshape(1, -1)
+            parts = [_to_np(obs[k]).astype(np.float32, copy=False).reshape(self.num_envs, -1)
                      for k in ("observation", "achieved_goal", "desired_goal")]
             return np.concatenate(parts, -1)
         x = _to_np(obs).astype(np.float32, copy=False)
@@ -145,8 +151,28 @@ class BatchEnv:
         return np.concatenate([o, dg], -1)
 
     def reset(self, seed: int) -> np.ndarray:
-        obs, _ = self.env.reset(seed=int(seed))
+        """Reset every env; env i gets seed ``seed + i`` (one env: ``seed``). Returns (N, D)."""
+        n = self.num_envs
+        obs, _ = self.env.reset(seed=int(seed) if n == 1 else [int(seed) + i for i in range(n)])
         return self._flat(obs)
+
+    def reset_envs(self, idx: np.ndarray, seeds) -> np.ndarray:
+        """Reset the envs ``idx`` (the others keep running) with one seed each; returns their (len(idx), D) rows.
+
+        ManiSkill 3.0.1's partial reset mishandles a list of seeds (it overwrites every env's episode
+        seed), so a partial ManiSkill reset is unseeded; a reset of all envs is seeded as usual.
+        """
+        idx = np.asarray(idx, dtype=np.int64)
+        n = self.num_envs
+        if len(idx) == n:
+            obs, _ = self.env.reset(seed=int(seeds[0]) if n == 1 else [int(x) for x in seeds])
+            return self._flat(obs)
+        if self.is_maniskill:
+            import torch
+            obs, _ = self.env.reset(options={"env_idx": torch.as_tensor(idx, device=self.unwrapped.device)})
+        else:
+            obs, _ = self.env.reset(seed=[int(x) for x in seeds], options={"env_idx": idx})
+        return self._flat(obs)[idx]
 
     def step(self, action: np.ndarray):
         """action in [-1, 1]^A -> (obs, reward, terminated, truncated, success or None), all numpy (N, ...)."""
@@ -154,7 +180,7 @@ class BatchEnv:
         if self.is_maniskill:
             import torch
             a = torch.as_tensor(a, dtype=torch.float32, device=self.unwrapped.device)
-        else:
+        elif not self._batched:
             a = a.reshape(self.env.action_space.shape)
         obs, rew, term, trunc, info = self.env.step(a)
         n = self.num_envs

@@ -23,6 +23,9 @@ def make_method(cfg: RunConfig, spec, rng: np.random.Generator, device: str = "c
         raise ConfigError(f"unknown method {cfg.method!r} (known: {', '.join(sorted(METHODS))})")
     if cls.uses_goals and not getattr(spec, "goal_dim", 0):
         raise ConfigError(f"method {cfg.method!r} needs a goal environment (HER); {cfg.env_id!r} has no goals")
+    if cls.uses_goals and getattr(spec, "is_maniskill", False) and cfg.reward_mode != "sparse":
+        raise ConfigError(f"method {cfg.method!r} relabels goals with the sparse compute_reward; "
+                          f"reward_mode={cfg.reward_mode!r} would mix two rewards (use reward_mode='sparse')")
     if cls.uses_goals and getattr(spec, "reward_fn", None) is None:
         raise ConfigError(f"method {cfg.method!r} needs the env's compute_reward; {cfg.env_id!r} gives none")
     return cls(cfg, spec, rng, device)

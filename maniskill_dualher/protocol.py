@@ -113,7 +113,7 @@ def run_stage(stages: Sequence[RunConfig], i: int, chain_dir: PathLike, carry_re
     if not lineage.is_file():
         atomic_write_text(lineage, json.dumps(stage_lineage(stages, i, carry_replay), indent=2, sort_keys=True))
     return run_training(stages[i], out, init_from=init_from, carry_replay=bool(carry_replay and i > 0),
-                        show_progress=show_progress)
+                        show_progress=show_progress, keep_replay=bool(carry_replay and i < len(stages) - 1))
 
 
 def run_transfer(stages: List[RunConfig], out_dir: PathLike, carry_replay: bool = True,

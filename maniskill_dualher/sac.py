@@ -162,12 +162,17 @@ class SAC(nn.Module):
         return self.log_alpha.exp()
 
     # ------------------------------------------------------------------ update
-    def update(self, batch: Batch, actor_batch: Optional[Batch] = None) -> Tuple[np.ndarray, Dict[str, float]]:
-        """One gradient step on every network. Returns (|TD| summed over critics per sample, logs)."""
-        with matmul_precision(self.cfg.matmul_precision):
-            return self._update(batch, actor_batch)
+    def update(self, batch: Batch, actor_batch: Optional[Batch] = None,
+               want_logs: bool = False) -> Tuple[np.ndarray, Dict[str, float]]:
+        """One gradient step on every network. Returns (|TD| summed over critics per sample, logs).
 
-    def _update(self, batch: Batch, actor_batch: Optional[Batch]) -> Tuple[np.ndarray, Dict[str, float]]:
+        ``logs`` (losses, alpha, entropy, Q) is filled only when ``want_logs``: reading them forces a
+        device sync, so the training loop asks on its own schedule (``SACConfig.log_every``)."""
+        with matmul_precision(self.cfg.matmul_precision):
+            return self._update(batch, actor_batch, want_logs)
+
+    def _update(self, batch: Batch, actor_batch: Optional[Batch],
+                want_logs: bool = False) -> Tuple[np.ndarray, Dict[str, float]]:
         obs, act, rew, next_obs, done = batch.obs, batch.action, batch.reward, batch.next_obs, batch.done
         alpha = self.log_alpha.exp().detach()
         w = batch.weights  # importance-sampling weights or None
@@ -220,23 +225,22 @@ class SAC(nn.Module):
             torch._foreach_lerp_(self._target_params, self._online_params, self.cfg.tau)
 
         td_abs = td.detach().abs().sum(0).cpu().numpy()
-        if self._log_now():
+        self._n_updates += 1
+        if want_logs:  # names as in CleanRL's SAC
             logs = {
-                "loss/critic": float(critic_loss.detach()),
-                "loss/actor": float(actor_loss.detach()),
-                "alpha": float(alpha),
-                "entropy": float(-logp_pi.detach().mean()),
-                "q_mean": float(q_sa.detach().mean()),
+                "losses/qf_loss": float(critic_loss.detach()),
+                "losses/actor_loss": float(actor_loss.detach()),
+                "losses/alpha": float(alpha),
+                "losses/entropy": float(-logp_pi.detach().mean()),
+                "losses/qf_values": float(q_sa.detach().mean()),
             }
             if self.paper:
-                logs["loss/value"] = float(v_loss.detach())
+                logs["losses/v_loss"] = float(v_loss.detach())
+            if self.learn_alpha:
+                logs["losses/alpha_loss"] = float(alpha_loss.detach())
         return td_abs, logs
 
     _n_updates = 0
-
-    def _log_now(self) -> bool:
-        self._n_updates += 1
-        return self._n_updates % 250 == 1
 
     # ------------------------------------------------------------- checkpoint
     def networks_state(self) -> dict:

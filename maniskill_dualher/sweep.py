@@ -26,7 +26,7 @@ from maniskill_dualher.config import ConfigError, ReplayConfig, RunConfig, SACCo
 
 METHODS = ("sac", "sac_her_per", "dual_buffer")
 TRANSFER_METHODS = ("sac_her_per", "dual_buffer")      # paper Fig. 5 / Table 5
-EXPERIMENTS = ("single", "transfer", "ratios")
+EXPERIMENTS = ("single", "transfer", "ratios", "scratch")
 PAPER_RATIOS = ((0.5, 0.5), (0.6, 0.4), (0.7, 0.3))   # paper Table 4
 SWEEP_FILE = "sweep.json"
 RUNS_DIR = "runs"
@@ -39,7 +39,7 @@ class Budget:
     single_steps: Dict[str, int]        # single-task run, per task (paper Fig. 4)
     stage_steps: Dict[str, int]         # a transfer *source* stage, per task
     adaptation_steps: Dict[str, int]    # the chain's last (target) stage, per task (paper: 120 vs 200 epochs)
-    seeds: Tuple[int, ...]
+    seeds: Tuple[int, ...]              # single-task experiment (paper Fig. 4)
     eval_every: int                     # env steps between evaluations
     eval_episodes: int
     checkpoint_every: int               # env steps between checkpoints (resume granularity)
@@ -55,6 +55,16 @@ class Budget:
     gamma: float = 0.99                 # paper Table 3
     sim_backend: str = "physx_cpu"      # "physx_cuda" + num_envs > 1 for GPU simulation (paper preset on a GPU)
     num_envs: int = 1                   # parallel envs per run (CPU simulation: 1)
+    tau: float = 0.005                  # Polyak rate of the target networks (not in the paper)
+    terminate_on_success: bool = True   # paper 4.1: an episode ends when the task is completed
+    update_schedule: str = "step"       # "step": updates_per_step per env step; "episode": Algorithm 1
+    updates_per_episode: float = 1.0    # with update_schedule "episode"
+    # seeds of the transfer, ratios and scratch experiments (the Table 4/5 and transfer claims);
+    # None: the same as ``seeds``
+    transfer_seeds: Optional[Tuple[int, ...]] = None
+
+    def chain_seeds(self) -> Tuple[int, ...]:
+        return tuple(self.seeds if self.transfer_seeds is None else self.transfer_seeds)
 
 
 def _per_task(reach: int, box: int, microwave: int) -> Dict[str, int]:
@@ -120,10 +130,11 @@ def base_config(b: Budget, method: str, seed: int) -> RunConfig:
     return RunConfig(
         method=method, seed=seed, max_episode_steps=b.max_episode_steps, eval_every=b.eval_every,
         eval_episodes=b.eval_episodes, checkpoint_every=b.checkpoint_every, torch_threads=1,
-        sim_backend=b.sim_backend, num_envs=b.num_envs,
+        sim_backend=b.sim_backend, num_envs=b.num_envs, terminate_on_success=b.terminate_on_success,
         sac=SACConfig(hidden=tuple(b.hidden), batch_size=b.batch_size, random_steps=b.random_steps,
                       learning_starts=b.learning_starts, updates_per_step=b.updates_per_step,
-                      variant=b.sac_variant, lr=b.lr, gamma=b.gamma),
+                      update_schedule=b.update_schedule, updates_per_episode=b.updates_per_episode,
+                      variant=b.sac_variant, lr=b.lr, gamma=b.gamma, tau=b.tau),
         replay=ReplayConfig(capacity=b.capacity, her_k=protocol.HER_K_SINGLE))
 
 
@@ -147,21 +158,26 @@ def build_grid(d: dict) -> List[Node]:
 
     order = d["task_order"]
     steps = [b.stage_steps[t] for t in order[:-1]] + [b.adaptation_steps[order[-1]]]
-    chains = []
+    chains = []  # (experiment folder, method, adaptation ratio, task order, step budgets)
+    transfer_methods = [m for m in d["methods"] if m in TRANSFER_METHODS]
     if "transfer" in d["experiments"]:
-        chains += [(m, None) for m in d["methods"] if m in TRANSFER_METHODS]
+        chains += [("transfer", m, None, order, steps) for m in transfer_methods]
     if "ratios" in d["experiments"] and "dual_buffer" in d["methods"]:
-        chains += [("dual_buffer", tuple(r)) for r in d["ratios"]]
-    for method, ratio in chains:
-        for seed in d["seeds"]:
-            stages = protocol.make_stages(base_config(b, method, seed), order, steps, adaptation_ratio=ratio)
+        chains += [("transfer", "dual_buffer", tuple(r), order, steps) for r in d["ratios"]]
+    if "scratch" in d["experiments"]:  # the control: the target task from scratch, adaptation budget and settings
+        chains += [("scratch", m, None, order[-1:], steps[-1:]) for m in transfer_methods]
+    seeds = d.get("chain_seeds", d["seeds"])
+    for kind, method, ratio, chain_order, chain_steps in chains:
+        for seed in seeds:
+            stages = protocol.make_stages(base_config(b, method, seed), chain_order, chain_steps,
+                                          adaptation_ratio=ratio)
             protocol.validate_chain(stages)
-            chain_rel = f"{RUNS_DIR}/transfer/{method}-s{seed}"
+            chain_rel = f"{RUNS_DIR}/{kind}/{method}-s{seed}"
             parent = None
             for i, cfg in enumerate(stages):
                 rel = f"{chain_rel}/{protocol.stage_dirname(stages, i, d['carry_replay'])}"
                 tag = f" ratio {format_ratio(cfg.replay.ratio)}" if method == "dual_buffer" else ""
-                add(Node(rel, cfg, f"transfer {method}{tag} seed {seed} stage {i} {cfg.env_id}", parent=parent,
+                add(Node(rel, cfg, f"{kind} {method}{tag} seed {seed} stage {i} {cfg.env_id}", parent=parent,
                          stages=stages, stage=i, carry_replay=d["carry_replay"]))
                 parent = rel
     for n in nodes.values():  # priority = how many runs wait on this one
@@ -219,9 +235,10 @@ def _apply_budget_override(b: Budget, item: str) -> None:
     key, val = (s.strip() for s in item.split("=", 1))
     name, _, sub = key.partition(".")
     fields = {f.name: f for f in dataclasses.fields(Budget)}
-    if name not in fields or name == "seeds":
-        choices = ", ".join(f for f in fields if f != "seeds")
-        raise ConfigError(f"unknown budget key {name!r} (choose from {choices}; seeds via --seeds)")
+    if name not in fields or name in ("seeds", "transfer_seeds"):
+        choices = ", ".join(f for f in fields if f not in ("seeds", "transfer_seeds"))
+        raise ConfigError(f"unknown budget key {name!r} (choose from {choices}; seeds via --seeds, "
+                          f"--transfer-seeds)")
     cur = getattr(b, name)
     try:
         if isinstance(cur, dict):
@@ -232,10 +249,14 @@ def _apply_budget_override(b: Budget, item: str) -> None:
             setattr(b, name, tuple(int(x) for x in _split(val)))
         elif name == "max_episode_steps":
             setattr(b, name, None if val.lower() == "none" else int(val))
-        elif name == "updates_per_step":
+        elif name in ("updates_per_step", "updates_per_episode", "tau", "lr", "gamma"):
             setattr(b, name, float(val))
-        elif name == "sim_backend":
+        elif name in ("sim_backend", "update_schedule", "sac_variant"):
             setattr(b, name, val)
+        elif name == "terminate_on_success":
+            if val.lower() not in ("true", "false", "1", "0"):
+                raise ValueError(val)
+            setattr(b, name, val.lower() in ("true", "1"))
         else:
             setattr(b, name, int(float(val)))
     except ValueError:
@@ -276,6 +297,9 @@ def definition_from_args(a: argparse.Namespace) -> dict:
         _apply_budget_override(b, item)
     if a.seeds is not None:
         b.seeds = parse_seeds(a.seeds)
+        b.transfer_seeds = None
+    if a.transfer_seeds is not None:
+        b.transfer_seeds = parse_seeds(a.transfer_seeds)
     _check_budget(b)
     order = _pick(a.task_order, protocol.TASKS, "task")
     if len(set(order)) != len(order):
@@ -290,10 +314,12 @@ def definition_from_args(a: argparse.Namespace) -> dict:
         "tasks": _pick(a.tasks, protocol.TASKS, "task") if a.tasks else list(protocol.TASKS),
         "methods": _pick(a.methods, METHODS, "method") if a.methods else list(METHODS),
         "seeds": list(b.seeds),
+        "chain_seeds": list(b.chain_seeds()),
         "ratios": [list(r) for r in ratios],
         "task_order": order,
         "carry_replay": not a.no_carry_replay,
-        "budget": {**dataclasses.asdict(b), "seeds": list(b.seeds), "hidden": list(b.hidden)},
+        "budget": {**dataclasses.asdict(b), "seeds": list(b.seeds), "hidden": list(b.hidden),
+                   "transfer_seeds": None if b.transfer_seeds is None else list(b.transfer_seeds)},
     }
     if "ratios" in d["experiments"] and "dual_buffer" not in d["methods"]:
         raise ConfigError("experiment 'ratios' needs method dual_buffer (it varies the dual buffer's ratio)")
@@ -360,7 +386,10 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--tasks", help=f"tasks of the single-task experiment (default: all: {','.join(protocol.TASKS)})")
     p.add_argument("--methods", help=f"comma list of {', '.join(METHODS)} (default: all; transfer uses "
                                       f"{' and '.join(TRANSFER_METHODS)} among them)")
-    p.add_argument("--seeds", help="a count (3 -> seeds 0,1,2) or a list (0,4,7; one seed: '7,'); default: the preset's")
+    p.add_argument("--seeds", help="a count (3 -> seeds 0,1,2) or a list (0,4,7; one seed: '7,') for every "
+                                   "experiment; default: the preset's")
+    p.add_argument("--transfer-seeds", help="seeds of the transfer, ratios and scratch experiments only "
+                                            "(same syntax as --seeds); default: the preset's")
     p.add_argument("--ratios", help="dual buffer P(R)/P(E) ratios of the ratios experiment, e.g. 0.5/0.5,0.7/0.3 "
                                     "(default: the paper's 0.5/0.5,0.6/0.4,0.7/0.3)")
     p.add_argument("--task-order", default=",".join(protocol.TRANSFER_ORDER),

@@ -1,16 +1,17 @@
-"""One run: rollout -> replay -> SAC update -> evaluation -> metrics and checkpoint.
+"""One run: act -> step -> store -> update when due -> evaluate / log / checkpoint between episodes.
 
     python -m maniskill_dualher.train --env ReachTarget-v1 --method dual_buffer --seed 0 --steps 30000 --out runs/x
 
 A run folder is the unit of truth: ``config.json``, ``metrics.csv`` (one row per evaluation),
-TensorBoard events, ``checkpoint.pt`` and, once finished, ``done.json``. Running again on the same
-folder resumes from the checkpoint; because every training episode is reset with its own seed and
-checkpoints are taken at episode boundaries together with all random-number state, a resumed run
-produces the same metrics as an uninterrupted one (CPU simulation).
+TensorBoard events (``losses/*`` every ``log_every`` updates, ``charts/*`` and ``replay/*``),
+``checkpoint.pt`` and, once finished, ``done.json``. Running again on the same folder resumes from the
+checkpoint; because every training episode is reset with its own seed and checkpoints are taken between
+episodes together with all random-number state, a resumed run produces the same metrics as an
+uninterrupted one (CPU simulation, one env).
 
-Episodes of ManiSkill tasks have a fixed length (``max_episode_steps``; success does not end them,
-as in the Fetch/HER convention), so N parallel GPU envs stay in lockstep and whole episodes go to
-replay at once. Plain gymnasium envs end on ``terminated or truncated``.
+Episodes end on success when ``terminate_on_success`` (the paper, section 4.1) or at
+``max_episode_steps``; with N parallel envs each env's episode ends on its own and goes to replay
+(with its hindsight goals) as soon as it ends. Plain gymnasium envs end on ``terminated or truncated``.
 """
 from __future__ import annotations
 
@@ -34,8 +35,8 @@ from .envs import EVAL_SEED_BASE, BatchEnv, make_env, train_episode_seed
 from .replay.base import Episode
 from .sac import SAC
 
-METRIC_COLUMNS = ["env_steps", "eval_return", "eval_success_rate", "eval_success_at_end",
-                  "train_episodes", "train_successes", "updates", "wall_time_s"]
+METRIC_COLUMNS = ["env_steps", "eval_return", "eval_success_rate", "eval_success_at_end", "eval_episode_length",
+                  "train_episodes", "train_successes", "train_episode_length", "updates", "wall_time_s"]
 DEMO_SEED_BASE = 2_000_000_000
 CHECKPOINT = "checkpoint.pt"
 
@@ -75,12 +76,13 @@ def load_checkpoint(run_dir: Path) -> dict:
 # --------------------------------------------------------------------------- the run
 class Trainer:
     def __init__(self, cfg: RunConfig, out_dir, init_from=None, carry_replay: bool = False,
-                 show_progress: bool = True):
+                 show_progress: bool = True, keep_replay: bool = False):
         from .methods import make_method  # late: methods import replay pieces
 
         self.cfg = cfg.validate()
         self.out = Path(out_dir)
         self.show_progress = show_progress
+        self.cfg_keep_replay = keep_replay  # a finished run keeps its replay only if a later stage reads it
         self._check_out_dir()
         init_state = load_checkpoint(Path(init_from)) if init_from is not None else None
 
@@ -91,6 +93,8 @@ class Trainer:
         self.spec = self.env.spec
         self.method = make_method(cfg, self.spec, np.random.default_rng([cfg.seed, 1]), device=cfg.device)
         self.agent = SAC(self.spec.input_dim, self.spec.act_dim, cfg.sac, device=cfg.device)
+        # relabeled transitions are terminal where their goal is reached iff real success ends an episode
+        self.goal_terminal = bool(cfg.terminate_on_success and self.spec.is_maniskill and self.spec.goal_dim)
 
         # counters: everything needed to continue exactly where a checkpoint left off
         self.env_steps = 0
@@ -100,6 +104,8 @@ class Trainer:
         self.update_credit = 0.0
         self.wall_time = 0.0
         self.demo_env_steps = 0
+        self.started = 0              # training episodes started (their reset seeds)
+        self.episode_steps_total = 0  # env steps of finished training episodes (mean episode length)
         self.rows: List[dict] = []
         self.resumed = False
 
@@ -132,9 +138,11 @@ class Trainer:
         except (RuntimeError, KeyError) as e:
             raise ConfigError(f"init_from networks do not fit {self.cfg.env_id!r}: {str(e).splitlines()[0]}") from None
         if carry_replay:
+            if state.get("method") is None:
+                raise ConfigError("init_from checkpoint holds no replay buffers (its run did not keep them); "
+                                  "rerun it, or transfer without carrying replay")
             self.method.load_state_dict(state["method"])
-            if hasattr(self.method, "reseed"):  # keep this run's own sampling stream
-                self.method.reseed(np.random.default_rng([self.cfg.seed, 1]))
+            self.method.reseed(np.random.default_rng([self.cfg.seed, 1]))  # keep this run's own sampling stream
 
     # ------------------------------------------------------------ checkpoint
     def _state(self) -> dict:
@@ -144,7 +152,8 @@ class Trainer:
             "method": self.method.state_dict(),
             "counters": dict(env_steps=self.env_steps, episodes=self.episodes, successes=self.successes,
                              updates=self.updates, update_credit=self.update_credit,
-                             wall_time=self.wall_time, demo_env_steps=self.demo_env_steps),
+                             wall_time=self.wall_time, demo_env_steps=self.demo_env_steps,
+                             started=self.started, episode_steps_total=self.episode_steps_total),
             "rows": self.rows,
             "rng": self.rng.bit_generator.state,
             "torch_rng": torch.get_rng_state(),
@@ -163,30 +172,41 @@ class Trainer:
         atomic_torch_save(self._state(), self.out / CHECKPOINT)
 
     # ------------------------------------------------------------ rollouts
-    def _run_episode(self, seed: int, policy) -> Episode:
-        """One episode of all N envs; ``policy(policy_input) -> actions in [-1, 1]``."""
-        env, T, N = self.env, self.spec.max_episode_steps, self.spec.num_envs
-        flat = env.reset(seed)
-        cols: Dict[str, list] = {k: [] for k in ("flat", "action", "reward", "next_flat", "terminated", "success")}
-        for t in range(T):
-            action = policy(env.policy_input(flat))
-            nxt, rew, term, trunc, succ = env.step(action)
-            cols["flat"].append(flat)
-            cols["action"].append(action.astype(np.float32, copy=False))
-            cols["reward"].append(rew)
-            # ManiSkill tasks: success is not terminal (fixed-length episodes); plain envs: true termination
-            cols["terminated"].append(term if not self.spec.is_maniskill else np.zeros(N, bool))
-            cols["success"].append(succ if succ is not None else np.zeros(N, bool))
-            cols["next_flat"].append(nxt)
-            flat = nxt
-            if not self.spec.is_maniskill and (term | trunc).all():
-                break
-        arr = {k: np.stack(v) for k, v in cols.items()}
-        o, ag, dg = env.split(arr["flat"])
-        no, nag, _ = env.split(arr["next_flat"])
+    def _episode(self, cols: Dict[str, np.ndarray]) -> Episode:
+        """Stacked per-step columns of one env, (T, ...), as a one-env Episode (T, 1, ...)."""
+        arr = {k: v[:, None] for k, v in cols.items()}
+        o, ag, dg = self.env.split(arr["flat"])
+        no, nag, _ = self.env.split(arr["next_flat"])
         return Episode(obs=o, action=arr["action"], reward=arr["reward"], next_obs=no,
                        terminated=arr["terminated"], achieved_goal=ag, next_achieved_goal=nag,
-                       desired_goal=dg, success=arr["success"])
+                       desired_goal=dg, success=arr["success"], goal_terminal=self.goal_terminal)
+
+    def _step(self, action: np.ndarray):
+        """env.step with this run's episode rules: (next_flat, reward, terminated, ended, success)."""
+        nxt, rew, term, trunc, succ = self.env.step(action)
+        succ = succ if succ is not None else np.zeros(self.spec.num_envs, bool)
+        if self.spec.is_maniskill and not self.cfg.terminate_on_success:
+            term = np.zeros_like(term)  # fixed-length episodes: success is not terminal
+        self.t += 1
+        ended = term | trunc | (self.t >= self.spec.max_episode_steps)
+        return nxt, rew, term, ended, succ
+
+    def _rollout(self, seed: int, policy) -> List[Episode]:
+        """Whole episodes of all N envs from one reset (evaluation, demonstrations); each ends on its own."""
+        N = self.spec.num_envs
+        flat = self.env.reset(seed)
+        self.t = np.zeros(N, np.int64)
+        asm = EpisodeAssembler(N)
+        out: List[Optional[Episode]] = [None] * N
+        while any(e is None for e in out):
+            action = policy(self.env.policy_input(flat))
+            nxt, rew, term, ended, succ = self._step(action)
+            asm.append(flat=flat, action=action, reward=rew, next_flat=nxt, terminated=term, success=succ)
+            for i in np.flatnonzero(ended):
+                if out[i] is None:
+                    out[i] = self._episode(asm.pop(i))
+            flat = nxt
+        return out  # type: ignore[return-value]
 
     def _explore(self, x: np.ndarray) -> np.ndarray:
         if self.env_steps < self.cfg.sac.random_steps:
@@ -195,125 +215,233 @@ class Trainer:
 
     def evaluate(self) -> dict:
         """Deterministic policy on fixed seeds shared by every run (EVAL_SEED_BASE + i)."""
-        n_rounds = math.ceil(self.cfg.eval_episodes / self.spec.num_envs)
-        rets, once, end = [], [], []
-        for i in range(n_rounds):
-            ep = self._run_episode(EVAL_SEED_BASE + i, lambda x: self.agent.act(x, deterministic=True))
-            rets.append(ep.reward.sum(0))
-            once.append(ep.success.any(0))
-            end.append(ep.success[-1])
         n = self.cfg.eval_episodes
-        return {"eval_return": float(np.concatenate(rets)[:n].mean()),
-                "eval_success_rate": float(np.concatenate(once)[:n].mean()),
-                "eval_success_at_end": float(np.concatenate(end)[:n].mean())}
+        eps: List[Episode] = []
+        for i in range(math.ceil(n / self.spec.num_envs)):
+            eps += self._rollout(EVAL_SEED_BASE + i * self.spec.num_envs,
+                                 lambda x: self.agent.act(x, deterministic=True))
+        eps = eps[:n]
+        return {"eval_return": float(np.mean([e.reward.sum() for e in eps])),
+                "eval_success_rate": float(np.mean([e.success.any() for e in eps])),
+                "eval_success_at_end": float(np.mean([e.success[-1].any() for e in eps])),
+                "eval_episode_length": float(np.mean([e.length for e in eps]))}
 
     def _collect_demos(self) -> None:
         """Seed the success buffer with scripted-solver successes (an option the paper does not have)."""
         want = self.cfg.replay.solver_demos
-        if want <= 0 or not hasattr(self.method, "add_demo_episode"):
+        if want <= 0:
             return
+        if not self.method.accepts_demos:
+            raise ConfigError(f"solver_demos={want}: method {self.cfg.method!r} has no success buffer to seed")
         solver = self.env.solver()
         if solver is None:
             raise ConfigError(f"solver_demos={want}: {self.cfg.env_id!r} has no scripted solver")
         got = 0
         for i in range(3 * want):
-            ep = self._run_episode(DEMO_SEED_BASE + i, lambda x: _solver_action(solver, self.env))
-            self.demo_env_steps += ep.length * self.spec.num_envs
-            if ep.success.any():
-                self.method.add_demo_episode(ep)
-                got += int(ep.success.any(0).sum())
+            for ep in self._rollout(DEMO_SEED_BASE + i * self.spec.num_envs,
+                                    lambda x: _solver_action(solver, self.env)):
+                self.demo_env_steps += ep.length
+                if ep.success.any() and got < want:
+                    self.method.add_demo_episode(ep)
+                    got += 1
             if got >= want:
                 break
 
     # ------------------------------------------------------------ main loop
     def run(self, stop_at: Optional[int] = None) -> Optional[dict]:
         """Train to ``cfg.total_steps``; with ``stop_at``, checkpoint and return None once that many
-        env steps are done (a time-sliced job; resuming continues the same experiment)."""
-        cfg = self.cfg
+        env steps are done (a time-sliced job; resuming continues the same experiment).
+
+        The loop, top to bottom: act, step, store the step, hand every finished episode to replay,
+        update when due, and between episodes evaluate / log / checkpoint when due. Each of the N envs'
+        episodes ends on its own (success when ``terminate_on_success``, or the time limit) and that env
+        is reset before the next step. Evaluations and checkpoints happen between episodes; with N > 1
+        envs the episodes still in flight then are cut (stored as time-limit truncations) and every env
+        restarts, so a checkpoint never holds half an episode.
+        """
+        cfg, s, N = self.cfg, self.cfg.sac, self.spec.num_envs
         done_path = self.out / "done.json"
         if done_path.is_file():
             return json.loads(done_path.read_text())["final"]
         from torch.utils.tensorboard import SummaryWriter
-        tb = SummaryWriter(str(self.out), purge_step=self.env_steps if self.resumed else None)
+        from tqdm import tqdm
+        self.tb = SummaryWriter(str(self.out), purge_step=self.env_steps if self.resumed else None)
         if not self.resumed and self.env_steps == 0:
             self._collect_demos()
-
         next_eval = (self.env_steps // cfg.eval_every + 1) * cfg.eval_every
         next_ckpt = (self.env_steps // cfg.checkpoint_every + 1) * cfg.checkpoint_every
-        from tqdm import tqdm
         bar = tqdm(total=cfg.total_steps, initial=self.env_steps, disable=not self.show_progress,
                    desc=f"{cfg.method} {cfg.env_id} seed {cfg.seed}", unit="step", dynamic_ncols=True, leave=False)
         t0 = time.perf_counter() - self.wall_time
-        N = self.spec.num_envs
-        pending_logs: Dict[str, float] = {}
+        asm = EpisodeAssembler(N)
+        needs_reset = np.ones(N, bool)  # every env starts a fresh episode (also after a resume)
+        flat = np.zeros((N, self.spec.flat_dim), np.float32)
+        self.t = np.zeros(N, np.int64)
         try:
             while self.env_steps < cfg.total_steps:
-                ep = self._rollout_and_learn(train_episode_seed(cfg.seed, self.episodes // N), bar, pending_logs)
-                self.method.add_episode(ep)
-                self.method.set_progress(min(1.0, self.env_steps / cfg.total_steps))
-                self.episodes += N
-                self.successes += int(ep.success.any(0).sum())
+                if needs_reset.any():
+                    flat = self._reset_envs(flat, needs_reset)
+                    asm.clear(needs_reset)
+                    needs_reset[:] = False
+                # act, step, store
+                action = self._explore(self.env.policy_input(flat))
+                nxt, rew, term, ended, succ = self._step(action)
+                asm.append(flat=flat, action=action, reward=rew, next_flat=nxt, terminated=term, success=succ)
+                self.env_steps += N
+                bar.update(N)
+                flat = nxt
+                for i in np.flatnonzero(ended):
+                    self._store(self._episode(asm.pop(i)))
+                needs_reset |= ended
+                # update when due
+                for _ in range(self._updates_due(N, int(ended.sum()))):
+                    self._update()
+                if not ended.any():
+                    continue
+                # between episodes: evaluate, checkpoint, stop when due
                 finished = self.env_steps >= cfg.total_steps
+                stopping = stop_at is not None and self.env_steps >= stop_at and not finished
+                if self.env_steps >= next_eval or finished or self.env_steps >= next_ckpt or stopping:
+                    needs_reset |= self._cut_in_flight(asm, needs_reset)
                 if self.env_steps >= next_eval or finished:
                     self.wall_time = time.perf_counter() - t0
-                    row = {"env_steps": self.env_steps, **self.evaluate(), "train_episodes": self.episodes,
-                           "train_successes": self.successes, "updates": self.updates,
-                           "wall_time_s": round(self.wall_time, 2)}
-                    row.update({(k if k.startswith("replay_") else f"replay_{k}"): v for k, v in self.method.stats().items()})
-                    self.rows.append(row)
-                    for k, v in row.items():
-                        if k != "env_steps" and isinstance(v, (int, float)):
-                            tb.add_scalar(k if k.startswith("replay_") else f"charts/{k}", v, self.env_steps)
-                    for k, v in pending_logs.items():
-                        tb.add_scalar(f"train/{k}", v, self.env_steps)
-                    atomic_write_text(self.out / "metrics.csv", rows_to_csv(self.rows))
+                    row = self._eval_row()
                     bar.set_postfix(success=f"{row['eval_success_rate']:.2f}", ret=f"{row['eval_return']:.1f}")
+                    needs_reset[:] = True  # evaluation reset the envs
                     next_eval = (self.env_steps // cfg.eval_every + 1) * cfg.eval_every
-                stopping = stop_at is not None and self.env_steps >= stop_at and not finished
                 if self.env_steps >= next_ckpt or finished or stopping:
                     self.wall_time = time.perf_counter() - t0
+                    self._check_finite()
                     self.save_checkpoint()
                     next_ckpt = (self.env_steps // cfg.checkpoint_every + 1) * cfg.checkpoint_every
                 if stopping:
                     return None
         finally:
             bar.close()
-            tb.close()
+            self.tb.close()
         final = dict(self.rows[-1])
         atomic_write_text(done_path, json.dumps({"final": final, "demo_env_steps": self.demo_env_steps}, indent=2) + "\n")
+        if not self.cfg_keep_replay:
+            drop_replay(self.out)
         return final
 
-    def _rollout_and_learn(self, seed: int, bar, logs: Dict[str, float]) -> Episode:
-        """One training episode with the update schedule interleaved step by step."""
-        s, N = self.cfg.sac, self.spec.num_envs
-        stored = self.episodes > 0 or self._has_replay()
+    # ------------------------------------------------------------ loop pieces
+    def _reset_envs(self, flat: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        """Reset the envs in ``mask``; each new training episode gets its own seed (exact resume)."""
+        idx = np.flatnonzero(mask)
+        seeds = [train_episode_seed(self.cfg.seed, self.started + k) for k in range(len(idx))]
+        self.started += len(idx)
+        flat = flat.copy()
+        flat[idx] = self.env.reset_envs(idx, seeds)
+        self.t[idx] = 0
+        return flat
 
-        def policy(x):
-            a = self._explore(x)
-            self.env_steps += N
-            bar.update(N)
-            if stored and self.env_steps >= s.learning_starts:
-                self.update_credit += N * s.updates_per_step
-                while self.update_credit >= 1.0:
-                    self.update_credit -= 1.0
-                    self._update(logs)
-            return a
+    def _store(self, ep: Episode) -> None:
+        self.method.add_episode(ep)
+        self.method.set_progress(min(1.0, self.env_steps / self.cfg.total_steps))
+        self.episodes += 1
+        self.successes += int(ep.success.any())
+        self.episode_steps_total += ep.length
 
-        return self._run_episode(seed, policy)
+    def _cut_in_flight(self, asm: "EpisodeAssembler", needs_reset: np.ndarray) -> np.ndarray:
+        """Store the episodes still running (N > 1) as truncated ones; return which envs were cut."""
+        cut = np.zeros_like(needs_reset)
+        for i in range(self.spec.num_envs):
+            if not needs_reset[i] and asm.length(i) > 0:
+                self._store(self._episode(asm.pop(i)))
+                cut[i] = True
+        return cut
 
-    def _has_replay(self) -> bool:
-        st = self.method.stats()
-        return any(v > 0 for k, v in st.items() if k.endswith("size"))
+    def _updates_due(self, n_steps: int, n_ended: int) -> int:
+        """How many gradient updates this env step buys under the configured schedule."""
+        s = self.cfg.sac
+        if self.env_steps < s.learning_starts or not self.method.has_data():
+            return 0
+        self.update_credit += n_steps * s.updates_per_step if s.update_schedule == "step" \
+            else n_ended * s.updates_per_episode
+        due = int(self.update_credit)
+        self.update_credit -= due
+        return due
 
-    def _update(self, logs: Dict[str, float]) -> None:
+    def _update(self) -> None:
         s = self.cfg.sac
         batch = self.method.sample(s.batch_size)
         actor_batch = self.method.sample_uniform(s.batch_size) if s.actor_uniform_batch else None
-        td_abs, new_logs = self.agent.update(batch, actor_batch)
+        log_now = self.updates % s.log_every == 0
+        td_abs, logs = self.agent.update(batch, actor_batch, want_logs=log_now)
         self.method.update_priorities(batch, td_abs)
         self.updates += 1
-        if new_logs:
-            logs.update(new_logs)
+        if log_now:
+            bad = [k for k, v in logs.items() if not math.isfinite(v)]
+            if bad:
+                raise TrainingDiverged(f"{bad[0]} became {logs[bad[0]]} at update {self.updates} "
+                                       f"(env step {self.env_steps}); the last good checkpoint is kept in {self.out}")
+            for k, v in logs.items():
+                self.tb.add_scalar(k, v, self.env_steps)
+            for k, v in self.method.stats().items():
+                self.tb.add_scalar(f"replay/{k}", v, self.env_steps)
+
+    def _check_finite(self) -> None:
+        for name, p in self.agent.named_parameters():
+            if not bool(torch.isfinite(p).all()):
+                raise TrainingDiverged(f"network weights {name} are not finite at env step {self.env_steps}; "
+                                       f"the last good checkpoint is kept in {self.out}")
+
+    def _eval_row(self) -> dict:
+        row = {"env_steps": self.env_steps, **self.evaluate(), "train_episodes": self.episodes,
+               "train_successes": self.successes, "updates": self.updates,
+               "train_episode_length": round(self.episode_steps_total / max(1, self.episodes), 3),
+               "wall_time_s": round(self.wall_time, 2)}
+        row.update({(k if k.startswith("replay_") else f"replay_{k}"): v for k, v in self.method.stats().items()})
+        self.rows.append(row)
+        for k, v in row.items():
+            if k != "env_steps" and isinstance(v, (int, float)) and not k.startswith("replay_"):
+                self.tb.add_scalar(f"charts/{k}", v, self.env_steps)
+        atomic_write_text(self.out / "metrics.csv", rows_to_csv(self.rows))
+        return row
+
+
+class TrainingDiverged(ConfigError):
+    """A loss or weight became NaN/inf: the run stops with one line, its last checkpoint intact."""
+
+
+class EpisodeAssembler:
+    """Per-env step columns of N parallel envs whose episodes end at different steps."""
+
+    KEYS = ("flat", "action", "reward", "next_flat", "terminated", "success")
+
+    def __init__(self, n: int):
+        self.cols: List[Dict[str, list]] = [{k: [] for k in self.KEYS} for _ in range(n)]
+
+    def append(self, **step: np.ndarray) -> None:
+        for i, c in enumerate(self.cols):
+            for k in self.KEYS:
+                c[k].append(step[k][i])
+
+    def length(self, i: int) -> int:
+        return len(self.cols[i]["flat"])
+
+    def pop(self, i: int) -> Dict[str, np.ndarray]:
+        c = self.cols[i]
+        out = {k: np.stack(v) for k, v in c.items()}
+        self.cols[i] = {k: [] for k in self.KEYS}
+        return out
+
+    def clear(self, mask: np.ndarray) -> None:
+        for i in np.flatnonzero(mask):
+            self.cols[i] = {k: [] for k in self.KEYS}
+
+
+def drop_replay(run_dir: Path) -> None:
+    """Rewrite a finished run's checkpoint without its replay buffers (what only a successor stage reads)."""
+    path = Path(run_dir) / CHECKPOINT
+    if not path.is_file():
+        return
+    state = torch.load(path, map_location="cpu", weights_only=False)
+    if state.get("method") is None:
+        return
+    state["method"] = None
+    atomic_torch_save(state, path)
 
 
 def _solver_action(solver, env: BatchEnv) -> np.ndarray:
@@ -325,13 +453,15 @@ def _solver_action(solver, env: BatchEnv) -> np.ndarray:
 
 
 def run_training(cfg: RunConfig, out_dir, init_from=None, carry_replay: bool = False,
-                 show_progress: bool = True, stop_at: Optional[int] = None) -> Optional[dict]:
+                 show_progress: bool = True, stop_at: Optional[int] = None,
+                 keep_replay: bool = False) -> Optional[dict]:
     """Train (or resume, or return the result of) one run in ``out_dir``; returns the final metrics row
     (None if ``stop_at`` paused it early)."""
     done = Path(out_dir) / "done.json"
     if done.is_file():
         return json.loads(done.read_text())["final"]
-    trainer = Trainer(cfg, out_dir, init_from=init_from, carry_replay=carry_replay, show_progress=show_progress)
+    trainer = Trainer(cfg, out_dir, init_from=init_from, carry_replay=carry_replay, show_progress=show_progress,
+                      keep_replay=keep_replay)
     try:
         return trainer.run(stop_at=stop_at)
     finally:
@@ -412,6 +542,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--config", help="JSON file with a RunConfig (flags override it)")
     p.add_argument("--init-from", help="a finished run folder whose networks start this run (transfer)")
     p.add_argument("--carry-replay", action="store_true", help="with --init-from: also carry its replay buffers")
+    p.add_argument("--keep-replay", action="store_true",
+                   help="keep the replay buffers in the finished run's checkpoint (for a later --carry-replay)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     _field_flags(p)
     return p
@@ -422,7 +554,7 @@ def main(argv=None) -> int:
     try:
         cfg = config_from_args(args)
         final = run_training(cfg, args.out, init_from=args.init_from, carry_replay=args.carry_replay,
-                             show_progress=not args.no_progress)
+                             show_progress=not args.no_progress, keep_replay=args.keep_replay)
     except ConfigError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

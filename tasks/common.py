@@ -11,14 +11,19 @@ slots      width  meaning
 0:9        9      Panda qpos (7 arm joints, 2 finger joints)
 9:18       9      Panda qvel
 18:25      7      TCP pose (``panda_hand_tcp``): position xyz, quaternion wxyz
-25:32      7      task object pose, position xyz + quaternion wxyz (Reach: red target ball;
-                  CloseBox: lid; CloseMicrowave: door)
+25:32      7      task object pose, position xyz + quaternion wxyz (CloseBox: lid; CloseMicrowave:
+                  door; ReachTarget: zeros, its target ball *is* the desired goal)
 32         1      task joint qpos (hinge angle, rad; 0 for ReachTarget)
 33         1      task joint qvel (rad/s; 0 for ReachTarget)
 34:40      6      two distractor positions xyz (ReachTarget: magenta, pink ball; zeros if none)
 40:43      3      achieved_goal (task-specific 3-D point, e.g. the TCP for ReachTarget)
 43:46      3      desired_goal (where that point must be for success)
 =========  =====  ===========================================================================
+
+No observation slot holds the desired goal: hindsight relabeling rewrites only the ``desired_goal``
+part, so a relabeled transition must not see the real goal elsewhere (``tests/test_tasks.py`` moves
+each task's goal and checks the observation slots stay put). The hinged tasks observe the panel (what
+the achieved goal measures), never its closed position.
 
 ``obs_mode="state_dict"`` returns ``{"observation", "achieved_goal", "desired_goal"}`` with the same
 content. All poses are world frame (table top at z = 0, robot base at x = -0.615).
@@ -32,7 +37,8 @@ Reward modes (``reward_mode=``):
 * ``normalized_dense``: ``dense / DENSE_REWARD_MAX`` in ``[0, 1]``.
 
 ``info`` (from ``evaluate()``) holds ``success`` (bool), ``goal_distance`` (m), ``achieved_goal``,
-``desired_goal`` and ``tcp_pose`` (N, 7) plus task extras; episodes terminate on success (ManiSkill).
+``desired_goal`` and ``tcp_pose`` (N, 7) plus task extras; ManiSkill reports ``terminated = success``; the training loop ends
+episodes on it when ``RunConfig.terminate_on_success`` (the paper), or ignores it (fixed-length episodes).
 
 There is no render device on the development machines: scenes are built from collision shapes;
 visual shapes are added only if ``scene.can_render()`` (see :func:`build_primitive`). Rendering or

@@ -26,6 +26,10 @@ class ReachTargetEnv(PandaGoalEnv):
       touches it (~2% of episodes; rejection sampling, batched);
     - the robot's rest joint angles get Gaussian noise (``robot_init_qpos_noise``, default 0.02 rad).
 
+    **Observation slots** (``tasks.common.OBS_SLOTS``): robot qpos/qvel, TCP pose, the two distractor
+    positions. ``object_pose`` and the joint slots are zeros: the red ball's position *is* the desired goal
+    and lives only in ``desired_goal``, so a hindsight-relabeled goal never contradicts the observation.
+
     **Success Conditions:**
     - the TCP is within ``goal_tolerance`` = 0.05 m of the red ball centre
       (achieved_goal = TCP position, desired_goal = red ball position).
@@ -53,7 +57,7 @@ class ReachTargetEnv(PandaGoalEnv):
         # The balls only move in _initialize_episode / set_state_dict: cache their centres (N, 3 balls, 3)
         # so observations and goals need not read actor poses every step (a third of the step cost).
         self._ball_pos = torch.zeros((self.num_envs, 3, 3), device=self.device)
-        self._unit_quat = torch.tensor([[1.0, 0, 0, 0]], device=self.device).repeat(self.num_envs, 1)
+        self._no_object = torch.zeros((self.num_envs, 7), device=self.device)
 
     def _refresh_ball_cache(self):
         self._ball_pos = torch.stack([ball.pose.p for ball in self.balls], dim=1).to(torch.float32)
@@ -94,7 +98,7 @@ class ReachTargetEnv(PandaGoalEnv):
         return self._ball_pos[:, 0]
 
     def _object_pose(self):
-        return torch.cat([self._ball_pos[:, 0], self._unit_quat], dim=-1)
+        return self._no_object  # the target is the desired goal: not observed here (no HER inconsistency)
 
     def _distractor_positions(self):
         return self._ball_pos[:, 1:].reshape(self.num_envs, 6)

@@ -76,7 +76,7 @@ def test_other_config_in_same_folder_is_refused(tmp_path):
 
 def test_transfer_init_from_loads_networks(tmp_path):
     import torch
-    run_training(tiny(steps=100), tmp_path / "src", show_progress=False)
+    run_training(tiny(steps=100), tmp_path / "src", show_progress=False, keep_replay=True)
     src = torch.load(tmp_path / "src" / "checkpoint.pt", weights_only=False)["agent"]["networks"]
     from maniskill_dualher.train import Trainer
     t = Trainer(tiny(env_id="CloseMicrowave-v1", steps=100), tmp_path / "dst", init_from=tmp_path / "src",
@@ -85,6 +85,19 @@ def test_transfer_init_from_loads_networks(tmp_path):
     assert all(torch.equal(src[k], dst[k]) for k in src)
     assert t.method.stats()["replay_size"] == 100 * (1 + 2)  # carried: 100 real steps + k=2 relabels each
     t.env.close()
+
+
+def test_finished_run_drops_its_replay_unless_kept(tmp_path):
+    """Disk: a finished run's checkpoint keeps networks; its replay only when a successor will read it."""
+    import torch
+    from maniskill_dualher.train import Trainer
+    run_training(tiny(steps=100), tmp_path / "src", show_progress=False)
+    state = torch.load(tmp_path / "src" / "checkpoint.pt", weights_only=False)
+    assert state["method"] is None and state["agent"]["networks"]
+    with pytest.raises(ConfigError, match="no replay"):
+        Trainer(tiny(env_id="CloseMicrowave-v1", steps=100), tmp_path / "dst", init_from=tmp_path / "src",
+                carry_replay=True, show_progress=False)
+    assert not (tmp_path / "dst").exists()
 
 
 def cli(*args):

@@ -35,6 +35,9 @@ class Episode:
     desired_goal: Optional[np.ndarray] = None        # (T, N, G)
     success: Optional[np.ndarray] = None             # (T, N) bool, env's own success flag
     info: Dict[str, Any] = field(default_factory=dict)
+    # True when reaching the goal ends an episode (terminate_on_success): then a relabeled transition is
+    # terminal exactly where its relabeled reward says the relabeled goal was reached.
+    goal_terminal: bool = False
 
     @property
     def is_goal(self) -> bool:
@@ -70,6 +73,10 @@ class ReplayMethod(Protocol):
     def state_dict(self) -> dict: ...
     def load_state_dict(self, state: dict) -> None: ...
     def stats(self) -> Dict[str, float]: ...  # logged each evaluation (sizes, share of batches from R, ...)
+    def has_data(self) -> bool: ...  # whether sample() can serve a batch (updates wait until then)
+    accepts_demos: bool  # whether add_demo_episode seeds a buffer (the dual buffer's E)
+    def add_demo_episode(self, ep: Episode) -> None: ...  # scripted-solver episode; no-op default
+    def reseed(self, rng: np.random.Generator) -> None: ...  # new sampling stream after loading another run's replay
 
 
 def goal_input(obs: np.ndarray, goal: np.ndarray) -> np.ndarray:

@@ -98,8 +98,10 @@ def relabel(ep: Episode, strategy: str, k: int, rng: np.random.Generator, reward
     reward = np.asarray(reward, dtype=_F32).reshape(-1)
     if reward.shape != (M,):
         raise ValueError(f"reward_fn returned shape {reward.shape}, expected ({M},)")
+    # done follows the relabeled goal when reaching the goal is what ends an episode; else the real flag
+    done = (reward > 0.5).astype(_F32) if ep.goal_terminal else rep(ep.terminated).astype(_F32)
     return {"obs": obs, "action": rep(ep.action).astype(_F32, copy=False), "reward": reward,
-            "next_obs": next_obs, "done": rep(ep.terminated).astype(_F32)}
+            "next_obs": next_obs, "done": done}
 
 
 def concat_rows(*parts: Dict[str, np.ndarray]) -> Dict[str, np.ndarray]:

@@ -17,6 +17,7 @@ from .samplers import UniformSampler
 
 class BufferMethod:
     uses_goals: bool = False
+    accepts_demos: bool = False
 
     def __init__(self, cfg, spec, rng: np.random.Generator, device: str = "cpu"):
         self.cfg = cfg
@@ -74,8 +75,14 @@ class BufferMethod:
         for buf in self.buffers.values():
             buf.set_progress(fraction)
 
+    def has_data(self) -> bool:
+        return any(len(b) > 0 for b in self.buffers.values())
+
+    def add_demo_episode(self, ep: Episode) -> None:
+        """Demonstrations only seed methods with a success buffer (``accepts_demos``); others ignore them."""
+
     def stats(self) -> Dict[str, float]:
-        """Buffer sizes (keys end in "size": the train loop checks them) and the PER max priority.
+        """Buffer sizes and the PER max priority.
 
         ``replay_size`` is the main buffer R for every method; other buffers are ``<name>_size``.
         """
