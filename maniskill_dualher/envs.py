@@ -70,7 +70,9 @@ class BatchEnv:
             self.env = self._make_maniskill(cfg)
         else:
             kw = {}
-            if cfg.max_episode_steps is not None:
+            if cfg.num_envs > 1:  # a batched env: the loop keeps each env's time limit itself
+                kw["disable_env_checker"] = True
+            elif cfg.max_episode_steps is not None:
                 kw["max_episode_steps"] = cfg.max_episode_steps
             self.env = gym.make(env_id, **kw)
             n = int(getattr(self.env.unwrapped, "num_envs", 1))
@@ -105,7 +107,7 @@ class BatchEnv:
         if self.is_maniskill:
             max_steps = int(cfg.max_episode_steps or (self.env.spec and self.env.spec.max_episode_steps) or 150)
         else:
-            max_steps = int(self.env.spec.max_episode_steps or 1000) if self.env.spec else 1000
+            max_steps = int(cfg.max_episode_steps or (self.env.spec and self.env.spec.max_episode_steps) or 1000)
         self.spec = EnvSpec(env_id, obs_dim, goal_dim, int(self.low.size), self.num_envs, max_steps,
                             reward_fn, self.is_maniskill)
 

@@ -87,7 +87,8 @@ def stage_dirname(stages: Sequence[RunConfig], i: int, carry_replay: bool) -> st
 def stage_lineage(stages: Sequence[RunConfig], i: int, carry_replay: bool) -> dict:
     """What the report needs to place a stage: index, chain, parent folder (relative), carry flag."""
     return {
-        "protocol": "transfer",
+        # a one-stage "chain" is the from-scratch control of the adaptation stage (same budget and settings)
+        "protocol": "transfer" if len(stages) > 1 else "scratch",
         "stage": i,
         "n_stages": len(stages),
         "adaptation": i == len(stages) - 1,

@@ -62,18 +62,21 @@ PAPER_TABLE3 = [  # (hyperparameter, paper value, how to read ours from a RunCon
     ("evaluation", "every 300 steps", lambda c: f"every {c.eval_every} steps x {c.eval_episodes} episodes"),
 ]
 
-MIN_SEEDS_FOR_CI = 3   # a bootstrap CI of 2 values is just their range: claim nothing from it
 # one colour per curve label in every panel, so a method keeps its colour across figures
 COLORS = {"sac": "tab:gray", "sac_her_per": "tab:blue", "dual_buffer 0.6/0.4": "tab:orange",
           "dual_buffer 0.5/0.5": "tab:purple", "dual_buffer 0.7/0.3": "tab:brown"}
 
 TABLE_COLUMNS = ["experiment", "task", "chain", "method", "ratio", "metric", "n_seeds", "seeds",
                  "mean", "std", "ci95_low", "ci95_high", "env_steps", "paper"]
-METRICS = {  # metric name -> how to read it from a finished run's last metrics row
-    "successful_train_episodes": "train_successes",
-    "final_eval_success_rate": "eval_success_rate",
-    "final_eval_return": "eval_return",
+METRICS = {  # metric name -> one score per run, read from its metrics rows
+    "successful_train_episodes": lambda r: r.final["train_successes"],
+    "final_eval_success_rate": lambda r: r.final["eval_success_rate"],
+    "final_eval_return": lambda r: r.final["eval_return"],
+    # area under the learning curve: the mean over every evaluation of the run (a faster learner scores higher)
+    "mean_eval_success_rate": lambda r: float(np.mean([row["eval_success_rate"] for row in r.rows])),
+    "mean_eval_return": lambda r: float(np.mean([row["eval_return"] for row in r.rows])),
 }
+SCRATCH = "from scratch"
 
 
 # --------------------------------------------------------------------------- run folders
@@ -91,7 +94,9 @@ class Run:
 
     @property
     def chain(self) -> str:
-        return " > ".join(self.lineage["chain"]) if self.lineage else ""
+        if not self.lineage:
+            return ""
+        return SCRATCH if self.lineage.get("protocol") == "scratch" else " > ".join(self.lineage["chain"])
 
 
 def read_metrics(path: Path) -> List[Dict[str, float]]:
@@ -185,7 +190,7 @@ def table_rows(experiment: str, groups: Dict[tuple, List[Run]], metrics: Sequenc
     rows = []
     for (task, chain, method, ratio, steps), runs in groups.items():
         for metric in metrics:
-            vals = [r.final[METRICS[metric]] for r in runs]
+            vals = [METRICS[metric](r) for r in runs]
             rows.append({"experiment": experiment, "task": task, "chain": chain, "method": method, "ratio": ratio,
                          "metric": metric, "seeds": " ".join(str(r.cfg.seed) for r in runs),
                          **summarize(vals, resamples), "env_steps": steps,
@@ -211,7 +216,7 @@ def paper_table5(task, chain, method, ratio, metric) -> str:
 
 def build_tables(runs: List[Run], resamples: int = 10_000) -> Dict[str, List[dict]]:
     adapt = group_runs(runs, "adaptation")
-    t4 = {k: v for k, v in adapt.items() if k[2] == "dual_buffer"}
+    t4 = {k: v for k, v in adapt.items() if k[2] == "dual_buffer" and k[1] != SCRATCH}
     t4 = dict(sorted(t4.items(), key=lambda kv: (_task_order(kv[0][0]), kv[0][1], kv[0][4], kv[0][3])))
     t5 = {k: v for k, v in adapt.items()
           if k[2] == "sac_her_per" or (k[2] == "dual_buffer" and k[3] == format_ratio(PAPER_RATIO))}
@@ -219,9 +224,10 @@ def build_tables(runs: List[Run], resamples: int = 10_000) -> Dict[str, List[dic
     return {
         "table4_sampling_ratio.csv": table_rows("ratios", t4, ["successful_train_episodes"], paper_table4, resamples),
         "table5_multitask.csv": table_rows("transfer", t5, ["successful_train_episodes", "final_eval_success_rate",
-                                                            "final_eval_return"], paper_table5, resamples),
-        "single_task.csv": table_rows("single", single, ["final_eval_success_rate", "final_eval_return",
-                                                         "successful_train_episodes"],
+                                                            "mean_eval_success_rate", "mean_eval_return"],
+                                           paper_table5, resamples),
+        "single_task.csv": table_rows("single", single, ["final_eval_success_rate", "mean_eval_success_rate",
+                                                         "mean_eval_return", "successful_train_episodes"],
                                       lambda *a: "", resamples),
     }
 
@@ -297,7 +303,9 @@ def curve(runs: List[Run], key: str, resamples: int = 2_000):
 def _plot_groups(ax, groups: Dict[str, List[Run]], key: str, title: str, ylabel: str) -> None:
     for label, runs in groups.items():
         x, m, lo, hi = curve(runs, key)
-        (line,) = ax.plot(x, m, marker="o", ms=3, label=f"{label} (n={len(runs)})", color=COLORS.get(label))
+        base = label.replace(f" {SCRATCH}", "")
+        (line,) = ax.plot(x, m, marker="o", ms=3, label=f"{label} (n={len(runs)})", color=COLORS.get(base),
+                          linestyle="--" if base != label else "-")
         ax.fill_between(x, lo, hi, color=line.get_color(), alpha=0.2)
     ax.set_title(title, fontsize=10)
     ax.set_xlabel("environment steps")
@@ -343,9 +351,9 @@ def plot_fig5(runs: List[Run], path: Path) -> bool:
     target = sorted({k[0] for k in adapt}, key=_task_order)[-1]
     adapt = {k: v for k, v in adapt.items() if k[0] == target}
     paper_ratio = format_ratio(PAPER_RATIO)
-    methods = {k[2] + (f" {k[3]}" if k[3] else ""): v for k, v in adapt.items()
-               if k[2] != "dual_buffer" or k[3] == paper_ratio}
-    ratios = {f"dual_buffer {k[3]}": v for k, v in adapt.items() if k[2] == "dual_buffer"}
+    methods = {k[2] + (f" {k[3]}" if k[3] else "") + (f" {SCRATCH}" if k[1] == SCRATCH else ""): v
+               for k, v in adapt.items() if k[2] != "dual_buffer" or k[3] == paper_ratio}
+    ratios = {f"dual_buffer {k[3]}": v for k, v in adapt.items() if k[2] == "dual_buffer" and k[1] != SCRATCH}
     fig, axes = plt.subplots(2, 2, figsize=(11, 8.5))
     _plot_groups(axes[0, 0], methods, "eval_return", f"{target} adaptation: evaluation return",
                  "return per episode (sparse reward, sum)")
@@ -355,54 +363,107 @@ def plot_fig5(runs: List[Run], path: Path) -> bool:
                  "successful training episodes (cumulative)")
     _plot_groups(axes[1, 1], ratios, "train_successes", f"{target} adaptation: sampling ratio P(R)/P(E) (Table 4)",
                  "successful training episodes (cumulative)")
-    chain = next(iter(adapt.values()))[0].chain
-    fig.suptitle(f"Multi-task transfer (paper Fig. 5): {chain}; mean over seeds, 95% bootstrap CI band")
+    chain = next((v[0].chain for k, v in adapt.items() if k[1] != SCRATCH), target)
+    fig.suptitle(f"Multi-task transfer (paper Fig. 5): {chain} (solid) vs {target} {SCRATCH} (dashed), "
+                 "same budget; mean over seeds, 95% bootstrap CI band")
     fig.tight_layout()
     save_figure(fig, path)
     plt.close(fig)
     return True
 
 
-# --------------------------------------------------------------------------- findings
-def compare(a: Optional[dict], b: Optional[dict], claim: str) -> str:
-    """One line: does mean(a) > mean(b) hold, and do the 95% CIs separate?"""
-    if a is None or b is None:
-        return f"- {claim}: not measured (runs missing)"
-    nums = f"{a['mean']:.3g} [{a['ci95_low']:.3g}, {a['ci95_high']:.3g}] vs {b['mean']:.3g} " \
-           f"[{b['ci95_low']:.3g}, {b['ci95_high']:.3g}]"
-    if a["mean"] <= b["mean"]:
-        return f"- {claim}: **not reproduced** ({nums})"
-    if min(a["n_seeds"], b["n_seeds"]) < MIN_SEEDS_FOR_CI:
-        return f"- {claim}: same direction, too few seeds ({min(a['n_seeds'], b['n_seeds'])}) to test ({nums})"
-    if a["ci95_low"] > b["ci95_high"]:
-        return f"- {claim}: **reproduced** (95% CIs separate; {nums})"
-    return f"- {claim}: same direction, not significant (95% CIs overlap; {nums})"
+# --------------------------------------------------------------------------- claims
+@dataclass
+class Claim:
+    key: str
+    text: str            # "A > B on ..." in the paper's direction
+    paper: str           # what the paper reports
+    metric: str          # a METRICS key
+    side_a: Tuple[str, ...]  # group selector: (kind, task, chain, method, ratio)
+    side_b: Tuple[str, ...]
+    relative_margin: bool = False  # margin = 10% of the larger mean (counts) instead of an absolute 0.1
 
 
-def _find(rows: List[dict], **kw) -> Optional[dict]:
-    return next((r for r in rows if all(r.get(k) == v for k, v in kw.items())), None)
+RATE_MARGIN = 0.1      # success rates and sparse returns per episode (in [0, 1]): 10 percentage points
+COUNT_MARGIN = 0.1     # counts: 10% of the larger side's mean
 
 
-def findings(tables: Dict[str, List[dict]]) -> List[str]:
-    t4, t5, single = (tables[k] for k in ("table4_sampling_ratio.csv", "table5_multitask.csv", "single_task.csv"))
-    out = []
-    for metric, what in (("successful_train_episodes", "successful training episodes (paper Table 5: 250 vs <45)"),
-                         ("final_eval_return", "final evaluation return (paper Fig. 5)")):
-        for task in sorted({r["task"] for r in t5}, key=_task_order):
-            out.append(compare(_find(t5, task=task, method="dual_buffer", metric=metric),
-                               _find(t5, task=task, method="sac_her_per", metric=metric),
-                               f"dual_buffer > sac_her_per on {task} adaptation, {what}"))
-    for task in sorted({r["task"] for r in t4}, key=_task_order):
-        rs = {r["ratio"]: r for r in t4 if r["task"] == task}
-        for hi, lo in (("0.6/0.4", "0.5/0.5"), ("0.5/0.5", "0.7/0.3")):
-            out.append(compare(rs.get(hi), rs.get(lo), f"ratio {hi} > {lo} on {task} successful training "
-                                                       f"episodes (paper Table 4: {PAPER_TABLE4[tuple(map(float, hi.split('/')))]}"
-                                                       f" vs {PAPER_TABLE4[tuple(map(float, lo.split('/')))]})"))
-    for task in sorted({r["task"] for r in single}, key=_task_order):
-        out.append(compare(_find(single, task=task, method="dual_buffer", metric="final_eval_return"),
-                           _find(single, task=task, method="sac", metric="final_eval_return"),
-                           f"dual_buffer > sac on {task} single-task final evaluation return (paper Fig. 4)"))
+def paper_claims(target: str = PAPER_TARGET, tasks: Sequence[str] = protocol.TASKS) -> List[Claim]:
+    """The paper's claims (a)-(h), each as side A > side B on one metric."""
+    chain = " > ".join(protocol.TRANSFER_ORDER)
+    r = format_ratio(PAPER_RATIO)
+    dual = ("adaptation", target, chain, "dual_buffer", r)
+    her = ("adaptation", target, chain, "sac_her_per", "")
+    out = [
+        Claim("a", f"dual_buffer > sac_her_per: successful {target} adaptation episodes",
+              "Table 5: 250 vs <45", "successful_train_episodes", dual, her, relative_margin=True),
+        Claim("b", f"dual_buffer > sac_her_per: {target} adaptation evaluation return (mean over the curve)",
+              "Fig. 5: dual buffer's curve above", "mean_eval_return", dual, her),
+        Claim("c", f"ratio 0.6/0.4 > 0.5/0.5: successful {target} adaptation episodes", "Table 4: 250 vs 154",
+              "successful_train_episodes", dual, dual[:4] + ("0.5/0.5",), relative_margin=True),
+        Claim("d", f"ratio 0.5/0.5 > 0.7/0.3: successful {target} adaptation episodes", "Table 4: 154 vs <75",
+              "successful_train_episodes", dual[:4] + ("0.5/0.5",), dual[:4] + ("0.7/0.3",), relative_margin=True),
+    ]
+    for key, task in zip("efg", tasks):
+        out.append(Claim(key, f"dual_buffer > sac: {task} single-task evaluation return (mean over the curve)",
+                         "Fig. 4: dual buffer's curve above SAC's", "mean_eval_return",
+                         ("single", task, "", "dual_buffer", r), ("single", task, "", "sac", "")))
+    out.append(Claim("h", f"transfer > from scratch: dual_buffer's successful {target} episodes in the adaptation "
+                          "budget", "assumed (section 3.1), never tested", "successful_train_episodes",
+                     dual, ("adaptation", target, SCRATCH, "dual_buffer", r), relative_margin=True))
+    out.append(Claim("h'", f"transfer > from scratch: sac_her_per's successful {target} episodes in the adaptation "
+                           "budget", "not in the paper", "successful_train_episodes",
+                     her, ("adaptation", target, SCRATCH, "sac_her_per", ""), relative_margin=True))
     return out
+
+
+def _side(runs: List[Run], sel: Tuple[str, ...]) -> List[Run]:
+    kind, task, chain, method, ratio = sel
+    groups = group_runs(runs, kind)
+    found = [v for k, v in groups.items() if k[:4] == (task, chain, method, ratio)]
+    return found[0] if found else []
+
+
+def claim_rows(runs: List[Run], resamples: int = 10_000) -> List[dict]:
+    """One row per claim: both sides' means, the difference with its 95% CI, P(A > B) and the verdict."""
+    from maniskill_dualher import stats
+
+    rows = []
+    for c in paper_claims():
+        a = [METRICS[c.metric](r) for r in _side(runs, c.side_a)]
+        b = [METRICS[c.metric](r) for r in _side(runs, c.side_b)]
+        row = {"claim": c.key, "statement": c.text, "paper": c.paper, "metric": c.metric}
+        if not a or not b:
+            rows.append({**row, "verdict": "not measured (runs missing)"})
+            continue
+        margin = COUNT_MARGIN * max(abs(np.mean(a)), abs(np.mean(b)), 1.0) if c.relative_margin else RATE_MARGIN
+        cmp = stats.compare(a, b, margin, resamples)
+        rows.append({**row, "n_a": cmp.n_a, "n_b": cmp.n_b, "mean_a": cmp.mean_a, "mean_b": cmp.mean_b,
+                     "diff": cmp.diff, "diff_ci95_low": cmp.ci_low, "diff_ci95_high": cmp.ci_high,
+                     "prob_improvement": cmp.prob_improvement, "margin": margin, "verdict": cmp.verdict_text(),
+                     "seeds_to_decide": cmp.seeds_to_decide})
+    return rows
+
+
+CLAIM_COLUMNS = ["claim", "statement", "paper", "metric", "n_a", "n_b", "mean_a", "mean_b", "diff", "diff_ci95_low",
+                 "diff_ci95_high", "prob_improvement", "margin", "verdict", "seeds_to_decide"]
+
+
+def _g(v) -> str:
+    return fmt(float(f"{v:.3g}")) if isinstance(v, float) and not math.isnan(v) else fmt(v)
+
+
+def claims_md(rows: List[dict]) -> List[str]:
+    lines = ["| | claim (A > B) | paper | ours: A vs B (mean over seeds, n) | A - B [95% CI] | P(A > B) | verdict |",
+             "|---|---|---|---|---|---|---|"]
+    for r in rows:
+        if "diff" not in r:
+            lines.append(f"| {r['claim']} | {r['statement']} | {r['paper']} | | | | {r['verdict']} |")
+            continue
+        lines.append(f"| {r['claim']} | {r['statement']} | {r['paper']} | {_g(r['mean_a'])} vs {_g(r['mean_b'])} "
+                     f"(n = {r['n_a']}, {r['n_b']}) | {_g(r['diff'])} [{_g(r['diff_ci95_low'])}, "
+                     f"{_g(r['diff_ci95_high'])}] | {r['prob_improvement']:.2f} | **{r['verdict']}** |")
+    return lines
 
 
 def md_table(rows: List[dict], columns: List[str]) -> str:
@@ -414,7 +475,7 @@ def md_table(rows: List[dict], columns: List[str]) -> str:
 
 
 def summary_md(folder: Path, runs: List[Run], unfinished: List[str], tables: Dict[str, List[dict]],
-               hyper: List[dict], tasks_note: str, figures: List[str]) -> str:
+               hyper: List[dict], tasks_note: str, figures: List[str], claims: List[dict]) -> str:
     sweep = json.loads((folder / SWEEP_FILE).read_text()) if (folder / SWEEP_FILE).is_file() else {}
     seeds = sorted({r.cfg.seed for r in runs})
     adapt_steps = sorted({r.cfg.total_steps for r in runs if r.lineage and r.lineage["adaptation"]})
@@ -434,9 +495,19 @@ def summary_md(folder: Path, runs: List[Run], unfinished: List[str], tables: Dic
     s += ["", "Tables are recomputed from run folders (config.json + metrics.csv); mean, sample std and a 95% "
           "percentile bootstrap CI (10,000 seeded resamples) over seeds. 'successful training episodes' = the "
           "paper's 'successful attempts': training episodes that ended in success, counted over the run.", ""]
-    s += ["## Findings (computed from the numbers below)", "",
-          f"'reproduced' needs the paper's direction, at least {MIN_SEEDS_FOR_CI} seeds per side and separate 95% CIs.",
-          ""] + findings(tables) + [""]
+    decided = [r for r in claims if "diff" in r and not r["verdict"].startswith(("inconclusive", "not measured"))]
+    s += ["## Verdicts on the paper's claims (`claims.csv`)", "",
+          "Each claim is 'A > B' in the paper's direction. The difference of the means A - B over seeds gets a "
+          "95% bootstrap CI (scipy.stats.bootstrap, percentile, 10,000 seeded resamples, each side resampled "
+          "within itself); P(A > B) is the probability of improvement (Mann-Whitney, as in rliable). "
+          "**reproduced**: the CI excludes 0 in the paper's direction; **contradicted**: it excludes 0 the "
+          f"other way; **no difference larger than X**: the CI lies within +-X (X = {RATE_MARGIN} for success "
+          f"rates and per-episode returns, {COUNT_MARGIN:.0%} of the larger mean for episode counts); "
+          "**inconclusive** otherwise, with the seeds per side that would likely decide it at the observed "
+          "spread. Curve claims (Fig. 4, Fig. 5) compare the mean over a run's evaluations (area under its "
+          "curve). With episodes that end on success the sparse return of an episode is 1 or 0, so return "
+          "and success rate coincide.", "",
+          f"{len(decided)} of {len(claims)} claims decided.", ""] + claims_md(claims) + [""]
     for name, title in (("table5_multitask.csv", "Table 5: SAC+HER+PER vs dual buffer, adaptation stage"),
                         ("table4_sampling_ratio.csv", "Table 4: dual buffer sampling ratio, adaptation stage"),
                         ("single_task.csv", "Single-task learning (paper Fig. 4 gives curves only)")):
@@ -475,8 +546,11 @@ def build_report(folder, resamples: int = 10_000) -> List[Path]:
         if fn(runs, folder / name):
             figures.append(name)
             written.append(folder / name)
+    claims = claim_rows(runs, resamples)
+    protocol.atomic_write_text(folder / "claims.csv", csv_text(claims, CLAIM_COLUMNS))
+    written.append(folder / "claims.csv")
     protocol.atomic_write_text(folder / "summary.md",
-                               summary_md(folder, runs, unfinished, tables, hyper, tasks_note, figures))
+                               summary_md(folder, runs, unfinished, tables, hyper, tasks_note, figures, claims))
     written.append(folder / "summary.md")
     return written
 

@@ -402,7 +402,8 @@ def make_parser() -> argparse.ArgumentParser:
                         "single_steps.CloseBox-v1=5000 (repeatable)")
     p.add_argument("--no-carry-replay", action="store_true",
                    help="transfer networks only; each stage starts with empty replay buffers")
-    p.add_argument("--out", help="output folder (default: results/<preset>)")
+    p.add_argument("--out", help="output folder (default: runs/<preset>, ignored by git; the committed reference "
+                                 "result lives in results/ and a default run never writes there)")
     p.add_argument("--workers", type=int, help="runs in parallel (default: min(2, CPU count); with --ray-address: "
                                                "the cluster's CPUs)")
     p.add_argument("--backend", choices=("local", "ray"), default="local",
@@ -527,8 +528,10 @@ def run_grid(nodes: List[Node], out: Path, backend, progress: bool = True) -> Li
     todo = [n for n in nodes if n.rel not in done]
     failed: List[str] = []
     in_flight: Dict[object, Node] = {}
-    bar = tqdm(total=len(nodes), initial=len(done), desc="sweep", unit="run", disable=not progress,
-               dynamic_ncols=True)
+    total = sum(n.cfg.total_steps for n in nodes)
+    # progress in env steps (finished runs count whole), so the ETA is one of work, not of run count
+    bar = tqdm(total=total, initial=sum(by_rel[r].cfg.total_steps for r in done), desc="sweep", unit="step",
+               unit_scale=True, disable=not progress, dynamic_ncols=True, smoothing=0.05)
     if done:
         bar.write(f"{len(done)} of {len(nodes)} runs already finished: skipped")
     try:
@@ -550,7 +553,8 @@ def run_grid(nodes: List[Node], out: Path, backend, progress: bool = True) -> Li
                     bar.write(f"FAILED {n.label} ({n.rel}): {type(e).__name__}: {msg}")
                     continue
                 done.add(n.rel)
-                bar.update(1)
+                bar.update(n.cfg.total_steps)
+                bar.set_postfix(runs=f"{len(done)}/{len(nodes)}")
                 bar.write(f"done {n.label}: {headline(res['row'])}")
         blocked = [n.rel for n in todo]
         if blocked:
@@ -567,7 +571,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         d = definition_from_args(a)
         nodes = build_grid(d)
         d["runs"] = sorted(n.rel for n in nodes)
-        out = Path(a.out if a.out else Path("results") / a.preset)
+        out = Path(a.out if a.out else Path(RUNS_DIR) / a.preset)
         if a.workers is not None and a.workers < 1:
             raise ConfigError(f"--workers must be >= 1, got {a.workers}")
         if a.ray_address and a.backend != "ray":

@@ -94,7 +94,9 @@ class Trainer:
         self.method = make_method(cfg, self.spec, np.random.default_rng([cfg.seed, 1]), device=cfg.device)
         self.agent = SAC(self.spec.input_dim, self.spec.act_dim, cfg.sac, device=cfg.device)
         # relabeled transitions are terminal where their goal is reached iff real success ends an episode
-        self.goal_terminal = bool(cfg.terminate_on_success and self.spec.is_maniskill and self.spec.goal_dim)
+        # envs whose ``terminated`` means success (ManiSkill; others say so with a class attribute)
+        self.success_terminates = bool(self.spec.is_maniskill or getattr(self.env.unwrapped, "terminate_on_success", False))
+        self.goal_terminal = bool(cfg.terminate_on_success and self.success_terminates and self.spec.goal_dim)
 
         # counters: everything needed to continue exactly where a checkpoint left off
         self.env_steps = 0
@@ -185,7 +187,7 @@ class Trainer:
         """env.step with this run's episode rules: (next_flat, reward, terminated, ended, success)."""
         nxt, rew, term, trunc, succ = self.env.step(action)
         succ = succ if succ is not None else np.zeros(self.spec.num_envs, bool)
-        if self.spec.is_maniskill and not self.cfg.terminate_on_success:
+        if self.success_terminates and not self.cfg.terminate_on_success:
             term = np.zeros_like(term)  # fixed-length episodes: success is not terminal
         self.t += 1
         ended = term | trunc | (self.t >= self.spec.max_episode_steps)
@@ -296,10 +298,10 @@ class Trainer:
                 # update when due
                 for _ in range(self._updates_due(N, int(ended.sum()))):
                     self._update()
-                if not ended.any():
-                    continue
-                # between episodes: evaluate, checkpoint, stop when due
                 finished = self.env_steps >= cfg.total_steps
+                if not (ended.any() or finished):
+                    continue
+                # between episodes (or at the budget's end): evaluate, checkpoint, stop when due
                 stopping = stop_at is not None and self.env_steps >= stop_at and not finished
                 if self.env_steps >= next_eval or finished or self.env_steps >= next_ckpt or stopping:
                     needs_reset |= self._cut_in_flight(asm, needs_reset)

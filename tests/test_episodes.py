@@ -1,0 +1,136 @@
+"""Episodes that end on success, per-env episode assembly with N envs, E as the paper defines it,
+relabeled ``done``, and the update schedule."""
+import numpy as np
+import pytest
+
+from maniskill_dualher.config import ReplayConfig, RunConfig, SACConfig
+from maniskill_dualher.replay.her import relabel
+from maniskill_dualher.train import Trainer
+
+from batched_goal_env import TOL, register
+from fakes import point_episode, reward_fn
+
+
+def point_cfg(n=3, method="dual_buffer", steps=600, **sac):
+    sac_kw = dict(random_steps=10**9, learning_starts=100, batch_size=16, hidden=(16, 16))
+    sac_kw.update(sac)
+    return RunConfig(env_id=register(n), method=method, seed=1, total_steps=steps, max_episode_steps=20,
+                     num_envs=n, eval_every=10**6, eval_episodes=n, checkpoint_every=10**6,
+                     sac=SACConfig(**sac_kw), replay=ReplayConfig(capacity=50_000, her_k=2))
+
+
+def train_capturing(cfg, tmp_path):
+    """Run the loop, recording every episode handed to replay."""
+    t = Trainer(cfg, tmp_path / "run", show_progress=False)
+    eps = []
+    add = t.method.add_episode
+    t.method.add_episode = lambda ep: (eps.append(ep), add(ep))[1]
+    t.run()
+    t.env.close()
+    return t, eps
+
+
+def test_n_envs_assemble_their_own_episodes(tmp_path):
+    t, eps = train_capturing(point_cfg(n=3), tmp_path)
+    lengths = [ep.length for ep in eps]
+    assert len(set(lengths)) > 3, "episodes of different lengths: each env ends on its own"
+    assert max(lengths) <= 20
+    for ep in eps:
+        assert ep.obs.shape[1] == 1  # one env per stored episode
+        # one env's trajectory: each step starts where the previous one ended, the goal never changes
+        np.testing.assert_array_equal(ep.obs[1:], ep.next_obs[:-1])
+        np.testing.assert_array_equal(ep.desired_goal, np.broadcast_to(ep.desired_goal[0], ep.desired_goal.shape))
+        step = np.linalg.norm(ep.next_achieved_goal - ep.achieved_goal, axis=-1)
+        assert step.max() <= 0.1 * np.sqrt(2) + 1e-6
+    # every env step went into exactly one stored episode (those in flight at the end are stored cut)
+    assert sum(lengths) == t.env_steps
+    assert t.episodes == len(eps)
+
+
+def test_success_ends_the_episode_and_is_terminal(tmp_path):
+    t, eps = train_capturing(point_cfg(n=3), tmp_path)
+    succeeded = [ep for ep in eps if ep.success.any()]
+    assert len(succeeded) >= 5
+    for ep in succeeded:
+        assert ep.success[-1, 0] and not ep.success[:-1].any(), "the first success is the last step"
+        assert ep.terminated[-1, 0] and not ep.terminated[:-1].any()
+        assert ep.goal_terminal
+    failed = [ep for ep in eps if not ep.success.any()]
+    assert not any(ep.terminated.any() for ep in failed)  # time limit: truncated, bootstrapped
+    assert sum(ep.length < 20 for ep in failed) <= 3  # only the episodes in flight when the budget ran out
+    # E: only real reward-1 transitions, one per successful episode, all terminal (no bootstrap)
+    E = t.method.E
+    rows = E.storage.get(np.arange(len(E)))
+    assert len(E) == len(succeeded) == t.successes
+    assert np.all(rows["reward"] == 1.0) and np.all(rows["done"] == 1.0)
+    # the real rows in R: done exactly at the successful steps
+    R = t.method.main
+    real = R.storage.get(np.arange(len(R)))
+    assert real["done"].sum() >= len(succeeded)
+
+
+def test_fixed_length_episodes_when_success_does_not_terminate(tmp_path):
+    cfg = point_cfg(n=1, steps=200)
+    cfg.terminate_on_success = False
+    t, eps = train_capturing(cfg, tmp_path)
+    assert all(ep.length == 20 for ep in eps)
+    assert not any(ep.terminated.any() for ep in eps) and not any(ep.goal_terminal for ep in eps)
+
+
+def test_success_buffer_episodes_mode_keeps_whole_successful_episodes(tmp_path):
+    cfg = point_cfg(n=3)
+    cfg.replay.success_buffer = "episodes"
+    t, eps = train_capturing(cfg, tmp_path)
+    assert len(t.method.E) == sum(ep.length for ep in eps if ep.success.any()) > 0
+
+
+def test_relabeled_done_follows_relabeled_success():
+    ep = point_episode(T=8, N=2, success_at=[(7, 0)])
+    ep.goal_terminal = True
+    rows = relabel(ep, "future", 4, np.random.default_rng(0), reward_fn)
+    assert rows["reward"].sum() > 0
+    np.testing.assert_array_equal(rows["done"], rows["reward"])
+    ep.goal_terminal = False  # fixed-length episodes: done is the real flag, whatever the goal
+    rows = relabel(ep, "future", 4, np.random.default_rng(0), reward_fn)
+    assert rows["done"].sum() == 4  # point_episode: env 0's last step is terminal, 4 copies of it
+    assert not np.array_equal(rows["done"], rows["reward"])
+
+
+@pytest.mark.parametrize("n", [1, 3])
+def test_update_schedule_per_episode(tmp_path, n):
+    """Algorithm 1: one update per finished episode (after learning_starts)."""
+    cfg = point_cfg(n=n, steps=300, update_schedule="episode", updates_per_episode=1.0, learning_starts=0)
+    t, eps = train_capturing(cfg, tmp_path)
+    # each episode that ended on its own (success or time limit) bought one update; those cut when the
+    # budget ran out ended no episode loop
+    natural = [ep for ep in eps if ep.success.any() or ep.length == 20]
+    assert len(natural) >= len(eps) - n
+    assert t.updates == len(natural)
+
+
+@pytest.mark.parametrize("n, utd", [(1, 1.0), (3, 0.5)])
+def test_update_schedule_per_step(tmp_path, n, utd):
+    """UTD: every vector step from the first with data and >= learning_starts buys n * utd updates."""
+    cfg = point_cfg(n=n, steps=300, updates_per_step=utd, learning_starts=90)
+    t = Trainer(cfg, tmp_path / "run", show_progress=False)
+    at = []
+    upd = t._update
+    t._update = lambda: (at.append(t.env_steps), upd())[1]
+    t.run()
+    t.env.close()
+    assert at[0] >= 90
+    vector_steps = (t.env_steps - at[0]) // n + 1
+    assert t.updates == len(at) == int(vector_steps * n * utd)
+
+
+def test_n_env_loop_learns_the_point_task(tmp_path):
+    """The batched loop trains: after learning, evaluation succeeds far more than random."""
+    cfg = point_cfg(n=4, method="sac_her_per", steps=4000, random_steps=400, learning_starts=200,
+                    batch_size=64, hidden=(64, 64), lr=1e-3, tau=0.05, gamma=0.9, variant="modern")
+    cfg.eval_every, cfg.eval_episodes = 2000, 20
+    cfg.replay.her_k = 4
+    t = Trainer(cfg, tmp_path / "run", show_progress=False)
+    final = t.run()
+    t.env.close()
+    assert t.rows[0]["eval_success_rate"] <= final["eval_success_rate"]
+    assert final["eval_success_rate"] >= 0.8
