@@ -80,17 +80,20 @@ PRESETS: Dict[str, Budget] = {
         adaptation_steps=_per_task(150, 150, 150), seeds=(0, 1),
         eval_every=100, eval_episodes=2, checkpoint_every=50, max_episode_steps=50,
         hidden=(32, 32), batch_size=32, random_steps=100, learning_starts=100, capacity=10_000),
-    # Default: the whole grid, every table and plot, on a 2-core CPU in <= 90 minutes.
-    # Deviations from the paper, so that runs learn within a CPU budget (measured on ReachTarget:
-    # the paper's SAC (V network, fixed alpha 0.005, lr 1e-4, gamma 0.99) had 0/10 eval successes at 20k
-    # steps where the modern variant (learned alpha, lr 3e-4, gamma 0.95) reached 10/10 at 17.5k):
-    # modern SAC, lr 3e-4, gamma 0.95, 128x128 networks, 100-step episodes, 2k random steps.
+    # Default: the whole grid, every table and plot, on a 2-core CPU in about an hour (AVX2 EPYC).
+    # Episodes end on success (paper 4.1), 100 steps at most. Deviations from the paper, so that runs learn
+    # within a CPU budget, measured with the train CLI (one seed, sac_her_per, episodes ending on success):
+    # rl-zoo goal-task settings (modern SAC with learned alpha, 64x64, lr 1e-3, tau 0.05, gamma 0.95,
+    # batch 256) solve CloseBox (1.0 eval success at 6k steps) and ReachTarget/CloseMicrowave within the
+    # single-task budgets below, where the paper's SAC (V network, fixed alpha 0.005, lr 1e-4, gamma 0.99)
+    # had 0/10 eval successes on ReachTarget at 20k. Seeds: 4 single-task, 6 for the transfer, ratio and
+    # scratch experiments, where the paper's Table 4/5 claims and the transfer question are decided.
     "quick": Budget(
-        single_steps=_per_task(12_000, 24_000, 24_000), stage_steps=_per_task(8_000, 16_000, 16_000),
-        adaptation_steps=_per_task(12_000, 12_000, 12_000), seeds=(0, 1, 2),
-        eval_every=3_000, eval_episodes=10, checkpoint_every=3_000, max_episode_steps=100,
-        hidden=(128, 128), batch_size=256, random_steps=2_000, learning_starts=1_000, capacity=1_000_000,
-        sac_variant="modern", lr=3e-4, gamma=0.95),
+        single_steps=_per_task(10_000, 10_000, 16_000), stage_steps=_per_task(6_000, 6_000, 6_000),
+        adaptation_steps=_per_task(12_000, 12_000, 12_000), seeds=(0, 1, 2, 3), transfer_seeds=(0, 1, 2, 3, 4, 5),
+        eval_every=1_000, eval_episodes=10, checkpoint_every=5_000, max_episode_steps=100,
+        hidden=(64, 64), batch_size=256, random_steps=1_000, learning_starts=1_000, capacity=1_000_000,
+        sac_variant="modern", lr=1e-3, gamma=0.95, tau=0.05),
     # The paper's budgets (section 4.2, Table 3): ReachTarget 500 epochs, CloseBox/CloseMicrowave 200,
     # adaptation 120; epoch = 200 episodes x 150 steps. For GPU simulation or a cluster (--backend ray).
     "paper": Budget(
@@ -99,7 +102,7 @@ PRESETS: Dict[str, Budget] = {
         adaptation_steps=_per_task(*(120 * PAPER_EPOCH_STEPS,) * 3), seeds=(0, 1, 2),
         eval_every=PAPER_EPOCH_STEPS, eval_episodes=10, checkpoint_every=10 * PAPER_EPOCH_STEPS,
         max_episode_steps=150, hidden=(256, 256), batch_size=256, random_steps=100_000,
-        learning_starts=100_000, capacity=10_000_000),
+        learning_starts=100_000, capacity=10_000_000, update_schedule="episode", updates_per_episode=1.0),
 }
 # ===========================================================================
 

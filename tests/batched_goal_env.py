@@ -56,5 +56,6 @@ class BatchedPointGoalEnv(gym.Env):
 def register(num_envs: int = 3) -> str:
     env_id = f"BatchedPointGoal{num_envs}-v0"
     if env_id not in gym.registry:
-        gym.register(env_id, entry_point=lambda **kw: BatchedPointGoalEnv(num_envs=num_envs, **kw))
+        gym.register(env_id, entry_point=lambda **kw: BatchedPointGoalEnv(num_envs=num_envs, **kw),
+                     disable_env_checker=True)
     return env_id

@@ -70,38 +70,51 @@ def test_tables_hold_the_final_rows_aggregated_over_seeds(folder):
     assert (row["n_seeds"], row["seeds"], float(row["mean"]), float(row["std"])) == ("3", "0 1 2", 12.0, 2.0)
     assert row["paper"] == "250" and row["ratio"] == "0.6/0.4" and row["env_steps"] == "300"
     assert 10 <= float(row["ci95_low"]) < 12 < float(row["ci95_high"]) <= 14
-    assert float(t5[("sac_her_per", "final_eval_return")]["mean"]) == 1.0     # finals 0.5, 1, 1.5
+    # mean over each run's evaluations (area under the curve): returns [0, 0.5], [0, 1], [0, 1.5]
+    assert float(t5[("sac_her_per", "mean_eval_return")]["mean"]) == 0.5
     assert t5[("sac_her_per", "successful_train_episodes")]["paper"] == "<45"
-    assert ("dual_buffer", "successful_train_episodes") in t5 and len(t5) == 6  # 0.5/0.5 is Table 4's only
+    assert ("dual_buffer", "successful_train_episodes") in t5 and len(t5) == 8  # 0.5/0.5 is Table 4's only
     t4 = _table(folder / "table4_sampling_ratio.csv")
     assert [(r["ratio"], float(r["mean"]), r["paper"]) for r in t4] == [("0.5/0.5", 6.0, "154"), ("0.6/0.4", 12.0, "250")]
     single = {(r["method"], r["metric"]): r for r in _table(folder / "single_task.csv")}
-    assert float(single[("dual_buffer", "final_eval_return")]["mean"]) == 6.0
+    assert float(single[("dual_buffer", "mean_eval_return")]["mean"]) == 3.0   # curves [0, 5], [0, 6], [0, 7]
     assert float(single[("sac", "final_eval_success_rate")]["mean"]) == pytest.approx(0.1)
     assert {r["task"] for r in single.values()} == {"CloseBox-v1"}          # the source stage is not a single run
 
 
-def test_findings_are_computed_from_the_numbers(folder):
+def test_claims_are_computed_from_the_numbers(folder):
     report.build_report(folder)
+    claims = {r["claim"]: r for r in _table(folder / "claims.csv")}
+    assert list(claims) == ["a", "b", "c", "d", "e", "f", "g", "h", "h'"]
+    a = claims["a"]  # dual 10, 12, 14 vs sac_her_per 1, 2, 3 successful adaptation episodes
+    assert (float(a["mean_a"]), float(a["mean_b"]), float(a["diff"])) == (12.0, 2.0, 10.0)
+    assert 0 < float(a["diff_ci95_low"]) < 10 < float(a["diff_ci95_high"]) and a["verdict"] == "reproduced"
+    assert float(a["prob_improvement"]) == 1.0
+    assert claims["c"]["verdict"] == "reproduced"         # 0.6/0.4: 10..14 vs 0.5/0.5: 4..8
+    assert claims["d"]["verdict"].startswith("not measured")  # no 0.7/0.3 runs
+    assert claims["f"]["verdict"] == "reproduced"         # CloseBox curves: dual [0, 5..7] vs sac [0, 0..2]
+    assert claims["e"]["verdict"].startswith("not measured")
+    assert claims["h"]["verdict"].startswith("not measured")  # no from-scratch control in this folder
     s = (folder / "summary.md").read_text()
-    assert "dual_buffer > sac_her_per on CloseMicrowave-v1 adaptation, successful training episodes" in s
-    line = next(ln for ln in s.splitlines() if "dual_buffer > sac_her_per" in ln and "successful" in ln)
-    assert "**reproduced**" in line                                            # 10..14 vs 1..3 separate
-    line = next(ln for ln in s.splitlines() if "ratio 0.5/0.5 > 0.7/0.3" in ln)
-    assert "not measured" in line
-    line = next(ln for ln in s.splitlines() if "dual_buffer > sac on CloseBox-v1" in ln)
-    assert "**reproduced**" in line
+    line = next(ln for ln in s.splitlines() if ln.startswith("| a |"))
+    assert "**reproduced**" in line and "Table 5: 250 vs <45" in line
     assert "compare directions and ratios" in s
 
 
-def test_compare_wording():
-    def st(vals):
-        return report.summarize(vals, 2000)
-    assert "not reproduced" in report.compare(st([1, 1, 1]), st([2, 2, 2]), "x")
-    assert "CIs overlap" in report.compare(st([1, 5, 9]), st([0, 4, 8]), "x")
-    assert "too few seeds" in report.compare(st([9, 10]), st([1, 2]), "x")
-    assert "**reproduced**" in report.compare(st([9, 10, 11]), st([1, 2, 3]), "x")
-    assert "not measured" in report.compare(None, st([1]), "x")
+def test_scratch_control_sits_beside_transfer(folder):
+    """The from-scratch control enters Table 5 as its own chain and decides claim (h)."""
+    for seed, final in enumerate([3, 4, 5]):
+        cfg = _cfg("CloseMicrowave-v1", "dual_buffer", seed)
+        _write_run(folder / f"runs/scratch/dual_buffer-s{seed}/stage0", cfg, [0, final], [0.0, 0.2],
+                   stage={"protocol": "scratch", "stage": 0, "n_stages": 1, "adaptation": True,
+                          "chain": ["CloseMicrowave-v1"], "parent": None, "carry_replay": True})
+    report.build_report(folder)
+    t5 = _table(folder / "table5_multitask.csv")
+    chains = {(r["chain"], r["method"]) for r in t5}
+    assert (report.SCRATCH, "dual_buffer") in chains and (" > ".join(protocol.TRANSFER_ORDER), "dual_buffer") in chains
+    assert all(r["chain"] != report.SCRATCH for r in _table(folder / "table4_sampling_ratio.csv"))
+    h = {r["claim"]: r for r in _table(folder / "claims.csv")}["h"]
+    assert (float(h["mean_a"]), float(h["mean_b"])) == (12.0, 4.0) and h["verdict"] == "reproduced"
 
 
 def test_bootstrap_is_seeded_and_brackets_the_mean():
@@ -132,7 +145,7 @@ def test_sweep_json_selects_the_runs(folder):
     (folder / "sweep.json").write_text(json.dumps({"preset": "unit", "runs": runs}))
     report.build_report(folder)
     assert _table(folder / "table5_multitask.csv") == []
-    assert len(_table(folder / "single_task.csv")) == 6
+    assert len(_table(folder / "single_task.csv")) == 8  # 2 methods x 4 metrics
     assert (folder / "summary.md").read_text().startswith("# Results: unit")
     assert (folder / "fig4_single_task.png").is_file()
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -24,6 +25,7 @@ TABLES = ["table4_sampling_ratio.csv", "table5_multitask.csv", "single_task.csv"
 OUTPUTS = TABLES + ["hyperparameters.csv", "fig4_single_task.png", "fig5_multitask.png", "summary.md"]
 METRIC_KEYS = {"successful_train_episodes": "train_successes", "final_eval_success_rate": "eval_success_rate",
                "final_eval_return": "eval_return"}
+CURVE_KEYS = {"mean_eval_success_rate": "eval_success_rate", "mean_eval_return": "eval_return"}
 
 
 def _env():
@@ -57,22 +59,26 @@ def _recompute(out: Path) -> dict:
         d = out / rel
         cfg = json.loads((d / "config.json").read_text())
         with open(d / "metrics.csv", newline="") as f:
-            last = list(csv.DictReader(f))[-1]
+            rows = list(csv.DictReader(f))
         stage = json.loads((d / "stage.json").read_text()) if (d / "stage.json").exists() else None
         if stage is None:
-            kind = "single"
+            kind, chain = "single", ""
         elif stage["adaptation"]:
             kind = "adaptation"
+            chain = "from scratch" if stage["protocol"] == "scratch" else " > ".join(stage["chain"])
         else:
             continue
         ratio = "/".join(f"{x:g}" for x in cfg["replay"]["ratio"]) if cfg["method"] == "dual_buffer" else ""
-        groups[(kind, cfg["env_id"], cfg["method"], ratio)].append((cfg["seed"], last, cfg["total_steps"]))
+        groups[(kind, cfg["env_id"], chain, cfg["method"], ratio)].append((cfg["seed"], rows, cfg["total_steps"]))
     return groups
 
 
 def _check_row(row: dict, members: list) -> None:
     members = sorted(members, key=lambda m: m[0])
-    vals = np.array([float(m[1][METRIC_KEYS[row["metric"]]]) for m in members])
+    if row["metric"] in CURVE_KEYS:  # mean over the run's evaluations
+        vals = np.array([np.mean([float(r[CURVE_KEYS[row["metric"]]]) for r in m[1]]) for m in members])
+    else:  # the run's last evaluation row
+        vals = np.array([float(m[1][-1][METRIC_KEYS[row["metric"]]]) for m in members])
     assert int(row["n_seeds"]) == len(vals)
     assert row["seeds"] == " ".join(str(m[0]) for m in members)
     assert int(row["env_steps"]) == members[0][2]
@@ -94,7 +100,7 @@ def assert_tables_match_runs(out: Path) -> None:
             rows = list(csv.DictReader(f))
         assert rows, name
         for row in rows:
-            _check_row(row, groups[(kind, row["task"], row["method"], row["ratio"])])
+            _check_row(row, groups[(kind, row["task"], row["chain"], row["method"], row["ratio"])])
 
 
 def _tables_bytes(out: Path) -> dict:
@@ -108,8 +114,10 @@ def test_smoke_local_end_to_end(smoke_local):
         assert (out / name).is_file() and (out / name).stat().st_size > 0, name
     assert (out / "fig4_single_task.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     d = json.loads((out / "sweep.json").read_text())
-    # 3 tasks x 3 methods x 2 seeds single; 2 methods x 3 stages x 2 seeds transfer; + 2 ratios x 2 seeds
-    assert len(d["runs"]) == 18 + 12 + 4
+    # 3 tasks x 3 methods x 2 seeds single; 2 methods x 3 stages x 2 seeds transfer; + 2 ratios x 2 seeds;
+    # + the from-scratch control: 2 methods x 2 seeds
+    assert len(d["runs"]) == 18 + 12 + 4 + 4
+    assert len([r for r in d["runs"] if r.startswith("runs/scratch/")]) == 4
     assert all(protocol.is_done(out / r) for r in d["runs"])
     # the ratio study shares the source stages with transfer's dual_buffer chain: one stage0 per seed
     assert len(list((out / "runs/transfer/dual_buffer-s0").glob("stage0-*"))) == 1
@@ -120,11 +128,14 @@ def test_smoke_local_end_to_end(smoke_local):
     assert {k: v["paper"] for k, v in t4.items()} == {"0.5/0.5": "154", "0.6/0.4": "250", "0.7/0.3": "<75"}
     with open(out / "table5_multitask.csv", newline="") as f:
         t5 = [r for r in csv.DictReader(f) if r["metric"] == "successful_train_episodes"]
-    assert {(r["method"], r["paper"]) for r in t5} == {("sac_her_per", "<45"), ("dual_buffer", "250")}
+    assert {(r["chain"], r["method"], r["paper"]) for r in t5} == {
+        (" > ".join(protocol.TRANSFER_ORDER), "sac_her_per", "<45"), (" > ".join(protocol.TRANSFER_ORDER), "dual_buffer", "250"),
+        ("from scratch", "sac_her_per", ""), ("from scratch", "dual_buffer", "")}
     for name in TABLES:  # wall time must stay out of tables (else resumed sweeps differ)
         assert "wall" not in (out / name).read_text()
     summary = (out / "summary.md").read_text()
-    assert "Findings" in summary and "154" in summary and "seeds [0, 1]" in summary
+    assert "Verdicts" in summary and "154" in summary and "seeds [0, 1]" in summary
+    assert (out / "claims.csv").is_file()
     hp = (out / "hyperparameters.csv").read_text()
     assert "HER goals per transition k,\"4 single-task, 8 multi-task\",4,8" in hp
 
@@ -392,3 +403,48 @@ def test_run_grid_parents_first_failures_block_descendants(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "FAILED" in out and "last line of the error" in out and "2 runs not started" in out
     assert "final eval success 0.50, successful training episodes 3" in out
+
+
+def _fresh_copy(dst: Path) -> Path:
+    """The repository as a fresh clone sees it: tracked and unignored files, committed in a new git repo."""
+    files = subprocess.run(["git", "ls-files", "-co", "--exclude-standard"], cwd=REPO, capture_output=True,
+                           text=True, check=True).stdout.split()
+    for f in files:
+        src = REPO / f
+        if src.is_file():
+            (dst / f).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(src, dst / f)
+    git = lambda *a: subprocess.run(["git", *a], cwd=dst, capture_output=True, text=True, check=True)  # noqa: E731
+    git("init", "-q")
+    git("add", "-A")
+    git("-c", "user.email=t@t", "-c", "user.name=t", "commit", "-qm", "fresh")
+    return dst
+
+
+def test_default_command_on_a_fresh_copy_writes_outside_the_reference(tmp_path):
+    """README's first command, as written (plus a tiny budget): it starts, trains, writes under runs/,
+    never touches the committed results/, and leaves git status clean."""
+    repo = _fresh_copy(tmp_path / "repo")
+    before = {p: p.read_bytes() for p in (repo / "results").rglob("*") if p.is_file()}
+    env = _env()
+    env["PYTHONPATH"] = str(repo)
+    proc = subprocess.Popen([sys.executable, "-m", "maniskill_dualher.sweep", "--steps", "60", "--seeds", "1",
+                             "--budget", "eval_every=30", "--budget", "eval_episodes=1",
+                             "--budget", "random_steps=20", "--budget", "learning_starts=20"],
+                            cwd=repo, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        deadline = time.time() + 240
+        while time.time() < deadline and proc.poll() is None:
+            if list((repo / "runs" / "quick").rglob("done.json")):
+                break
+            time.sleep(1)
+        assert list((repo / "runs" / "quick").rglob("done.json")), "no run finished under runs/quick"
+        assert (repo / "runs" / "quick" / "sweep.json").is_file()
+    finally:
+        proc.kill()
+        out = proc.communicate()[0]
+    assert "error" not in out.lower().split("done")[0], out
+    after = {p: p.read_bytes() for p in (repo / "results").rglob("*") if p.is_file()}
+    assert after == before, "the committed reference was touched"
+    status = subprocess.run(["git", "status", "--porcelain"], cwd=repo, capture_output=True, text=True).stdout
+    assert status == "", status

@@ -337,3 +337,31 @@ def test_set_state_restores_observation(task):
     assert not torch.equal(obs_a, obs_b)
     base.set_state(state_a)
     torch.testing.assert_close(base.get_obs(), obs_a)
+
+
+def _move_goal(base, delta):
+    """Move the task's desired goal by ``delta`` without touching anything the goal does not define."""
+    if hasattr(base, "_ball_pos"):  # ReachTarget: the red ball is the goal
+        base._ball_pos[:, 0] += delta
+    elif hasattr(base, "_desired_cache"):  # hinged tasks: the panel's closed free-edge point
+        base._desired_cache = base._desired_cache + delta
+    else:
+        pytest.fail(f"{type(base).__name__}: teach _move_goal how to move this task's desired goal")
+
+
+@pytest.mark.parametrize("task", TASK_IDS)
+def test_observation_does_not_contain_the_desired_goal(task):
+    """Hindsight relabeling rewrites only the desired_goal slots: no observation slot may carry the goal."""
+    env = make(task)
+    base = env.unwrapped
+    env.reset(seed=3)
+    for _ in range(2):
+        env.step(env.action_space.sample())
+    before = base.get_obs(base.get_info())
+    _move_goal(base, torch.tensor([0.07, -0.05, 0.03]))
+    after = base.get_obs(base.get_info())
+    o0, _, d0 = split_goal_obs(before)
+    o1, _, d1 = split_goal_obs(after)
+    assert not torch.allclose(d0, d1), "the desired goal moved"
+    torch.testing.assert_close(o1, o0, rtol=0, atol=0)
+    env.reset(seed=3)  # restore a consistent state for the cached env
