@@ -8,14 +8,14 @@
   SBX cannot be used (None if it can).
 * ``evaluate_peer``: a peer's deterministic policy on fixed reset seeds (ours: EVAL_SEED_BASE + i).
 * ``cpu_name``, ``loadavg``, ``thread_info``: the machine line every bench prints.
-* ``atomic_write_json``: temp file in the same folder + ``os.replace`` (a kill never leaves half a file).
+* ``atomic_write_json``: JSON through ``maniskill_dualher.fileio.atomic_write_text`` (a kill never leaves half
+  a file).
 """
 from __future__ import annotations
 
 import json
 import os
 import sys
-import tempfile
 
 XLA_ONE_THREAD = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
 
@@ -42,6 +42,8 @@ pin_threads(argv_threads())
 
 import numpy as np  # noqa: E402
 import gymnasium as gym  # noqa: E402
+
+from maniskill_dualher.fileio import atomic_write_text  # noqa: E402
 
 HER_STRATEGY = "future"
 
@@ -201,21 +203,5 @@ def thread_info() -> str:
 
 
 def atomic_write_json(path: str, doc) -> None:
-    """Write ``doc`` as JSON: a temp file in the same folder, then ``os.replace`` (mode 0666 & ~umask)."""
-    path = os.path.abspath(path)
-    os.makedirs(os.path.dirname(path), exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=os.path.dirname(path), prefix="." + os.path.basename(path) + ".", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as f:
-            json.dump(doc, f, indent=1)
-            f.write("\n")
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
+    """Write ``doc`` as JSON (indent 1, trailing newline) with ``maniskill_dualher.fileio.atomic_write_text``."""
+    atomic_write_text(path, json.dumps(doc, indent=1) + "\n")

@@ -48,23 +48,9 @@ class CheckFailed(Exception):
 
 
 def atomic_write_json(path: str, doc: dict) -> None:
-    path = os.path.abspath(path)
-    os.makedirs(os.path.dirname(path), exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=os.path.dirname(path), prefix="." + os.path.basename(path) + ".", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as f:
-            json.dump(doc, f, indent=1, default=str)
-            f.write("\n")
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
+    # late: importing the package loads ManiSkill, which the no-CUDA exit must not wait for (or hear from)
+    from maniskill_dualher.fileio import atomic_write_text
+    atomic_write_text(path, json.dumps(doc, indent=1, default=str) + "\n")
 
 
 class Report:

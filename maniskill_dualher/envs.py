@@ -10,7 +10,7 @@ dict goal envs are flattened to it), and ``split`` cuts it apart. Actions go in 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable, Optional, Tuple
+from typing import Optional, Tuple
 
 import gymnasium as gym
 import numpy as np

@@ -1,10 +1,13 @@
 """Atomic writes: a temp file in the same folder, then os.replace, so a kill never leaves half a file."""
 from __future__ import annotations
 
+import csv
+import io
+import math
 import os
 import tempfile
 from pathlib import Path
-from typing import Callable, Union
+from typing import Callable, List, Optional, Union
 
 PathLike = Union[str, Path]
 
@@ -42,3 +45,29 @@ def atomic_write_text(path: PathLike, text: str) -> None:
 def atomic_torch_save(obj, path: PathLike) -> None:
     import torch  # late: the report and sweep never need torch for their own files
     _atomic(path, lambda tmp: torch.save(obj, tmp))
+
+
+def atomic_write_with(path: PathLike, write: Callable[[str], None]) -> None:
+    """Atomic write of any file a writer can produce from a temp path (e.g. ``fig.savefig``)."""
+    _atomic(path, write)
+
+
+def fmt(v) -> str:
+    """A table cell: floats to 6 significant digits (nan as 'nan'), None as empty."""
+    if isinstance(v, float):
+        return "nan" if math.isnan(v) else f"{v:.6g}"
+    return "" if v is None else str(v)
+
+
+def csv_text(rows: List[dict], columns: Optional[List[str]] = None) -> str:
+    """CSV of dict rows (columns: given, or in order of first appearance), cells through ``fmt``."""
+    if columns is None:
+        columns = []
+        for r in rows:
+            columns += [k for k in r if k not in columns]
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=columns, lineterminator="\n")
+    w.writeheader()
+    for r in rows:
+        w.writerow({k: fmt(r.get(k)) for k in columns})
+    return buf.getvalue()

@@ -1,26 +1,62 @@
-"""Method registry: name -> replay method class. A new method is one file + one line here."""
+"""The method registry: every method declares itself here once, and train, protocol, sweep and report
+read it. A new method is one file (a ``ReplayMethod``, see ``replay/method.py``) plus one line below.
+
+A :class:`MethodSpec` says what the rest of the project needs to know without importing the method's
+code (the report runs without torch): where its class lives, its legend label and colour, whether it
+takes part in the transfer experiment (and its from-scratch control), and whether its R/E sampling
+ratio is a setting that the ratio study varies and that names its run folders and table rows.
+"""
 from __future__ import annotations
+
+import importlib
+from dataclasses import dataclass
+from typing import Dict, List
 
 import numpy as np
 
-from baselines.sac import SACReplay
-from baselines.sac_her_per import SACHerPerReplay
+from .config import ConfigError, RunConfig, format_ratio
 
-from .config import ConfigError, RunConfig
-from .dual_buffer import DualBufferReplay
 
-METHODS = {
-    "sac": SACReplay,                 # vanilla SAC, uniform replay of real transitions
-    "sac_her_per": SACHerPerReplay,   # one prioritized buffer, real + hindsight
-    "dual_buffer": DualBufferReplay,  # the paper: prioritized R + uniform success buffer E
-}
+@dataclass(frozen=True)
+class MethodSpec:
+    name: str
+    target: str               # "module:Class" of its ReplayMethod, imported when a run builds it
+    display: str              # legend and table label
+    color: str                # matplotlib colour, the same in every figure
+    transfer: bool = True     # runs the transfer chain (paper Fig. 5 / Table 5) and the scratch control
+    sampling_ratio: bool = False  # replay.ratio matters: the ratio study varies it; it tags folders and rows
+
+    def tag(self, cfg: RunConfig) -> str:
+        """The settings that tell this method's runs apart in folder names and table rows ('' if none)."""
+        return format_ratio(cfg.replay.ratio) if self.sampling_ratio else ""
+
+    def load(self):
+        module, cls = self.target.split(":")
+        return getattr(importlib.import_module(module), cls)
+
+
+METHOD_SPECS: Dict[str, MethodSpec] = {s.name: s for s in (
+    MethodSpec("sac", "baselines.sac:SACReplay", "SAC (uniform replay)", "tab:gray", transfer=False),
+    MethodSpec("sac_her_per", "baselines.sac_her_per:SACHerPerReplay", "SAC+HER+PER", "tab:blue"),
+    MethodSpec("dual_buffer", "maniskill_dualher.dual_buffer:DualBufferReplay", "dual buffer", "tab:orange",
+               sampling_ratio=True),
+)}
+
+
+def method_names() -> List[str]:
+    return list(METHOD_SPECS)
+
+
+def method_spec(name: str) -> MethodSpec:
+    spec = METHOD_SPECS.get(name)
+    if spec is None:
+        raise ConfigError(f"unknown method {name!r} (known: {', '.join(METHOD_SPECS)})")
+    return spec
 
 
 def make_method(cfg: RunConfig, spec, rng: np.random.Generator, device: str = "cpu"):
     """Build the replay method ``cfg.method`` for an env described by ``spec`` (an EnvSpec)."""
-    cls = METHODS.get(cfg.method)
-    if cls is None:
-        raise ConfigError(f"unknown method {cfg.method!r} (known: {', '.join(sorted(METHODS))})")
+    cls = method_spec(cfg.method).load()
     if cls.uses_goals and not getattr(spec, "goal_dim", 0):
         raise ConfigError(f"method {cfg.method!r} needs a goal environment (HER); {cfg.env_id!r} has no goals")
     if cls.uses_goals and getattr(spec, "is_maniskill", False) and cfg.reward_mode != "sparse":

@@ -19,10 +19,12 @@ import copy
 import hashlib
 import json
 from pathlib import Path
-from typing import List, Optional, Sequence, Union
+from typing import List, Sequence, Union
 
-from maniskill_dualher.config import ConfigError, RunConfig, format_ratio
-from maniskill_dualher.fileio import atomic_write_text  # noqa: F401  (re-exported for report/sweep)
+from maniskill_dualher import rundir
+from maniskill_dualher.config import ConfigError, RunConfig
+from maniskill_dualher.methods import method_spec
+from maniskill_dualher.rundir import is_done  # noqa: F401  (protocol.is_done: a stage is finished)
 
 PathLike = Union[str, Path]
 
@@ -30,7 +32,6 @@ TASKS = ("ReachTarget-v1", "CloseBox-v1", "CloseMicrowave-v1")
 TRANSFER_ORDER = TASKS                  # paper: ReachTarget -> CloseBox -> CloseMicrowave
 HER_K_SINGLE = 4                        # paper 4.2.1
 HER_K_MULTITASK = 8                     # paper 4.2.2: "k ... was increased from 4 to 8"
-LINEAGE_FILE = "stage.json"  # (train.py writes lineage.json: where the networks came from)
 
 
 # --------------------------------------------------------------------------- small shared helpers
@@ -38,10 +39,6 @@ def short_hash(obj) -> str:
     """8 hex chars of sha256 over canonical JSON: the key that makes a folder name a config identity."""
     blob = json.dumps(obj, sort_keys=True, separators=(",", ":"), default=list)
     return hashlib.sha256(blob.encode()).hexdigest()[:8]
-
-
-def is_done(run_dir: PathLike) -> bool:
-    return (Path(run_dir) / "done.json").is_file()
 
 
 # --------------------------------------------------------------------------- chains
@@ -80,7 +77,8 @@ def stage_dirname(stages: Sequence[RunConfig], i: int, carry_replay: bool) -> st
     """Readable name + hash of the chain prefix 0..i (a stage's identity includes where it started)."""
     cfg = stages[i]
     key = {"stages": [s.to_dict() for s in stages[: i + 1]], "carry_replay": bool(carry_replay)}
-    tag = f"-r{format_ratio(cfg.replay.ratio).replace('/', '-')}" if cfg.method == "dual_buffer" else ""
+    variant = method_spec(cfg.method).tag(cfg)
+    tag = f"-r{variant.replace('/', '-')}" if variant else ""
     return f"stage{i}-{cfg.env_id}{tag}-{short_hash(key)}"
 
 
@@ -110,9 +108,8 @@ def run_stage(stages: Sequence[RunConfig], i: int, chain_dir: PathLike, carry_re
         init_from = chain_dir / stage_dirname(stages, i - 1, carry_replay)
         if not is_done(init_from):
             raise ConfigError(f"stage {i} needs finished stage {i - 1} at {init_from}")
-    lineage = out / LINEAGE_FILE
-    if not lineage.is_file():
-        atomic_write_text(lineage, json.dumps(stage_lineage(stages, i, carry_replay), indent=2, sort_keys=True))
+    if rundir.read_stage(out) is None:
+        rundir.write_stage(out, stage_lineage(stages, i, carry_replay))
     return run_training(stages[i], out, init_from=init_from, carry_replay=bool(carry_replay and i > 0),
                         show_progress=show_progress, keep_replay=bool(carry_replay and i < len(stages) - 1))
 
@@ -132,6 +129,4 @@ def transfer_chain_dirs(out_dir: PathLike, stages: Sequence[RunConfig], carry_re
     return [Path(out_dir) / stage_dirname(stages, i, carry_replay) for i in range(len(stages))]
 
 
-def read_lineage(run_dir: PathLike) -> Optional[dict]:
-    p = Path(run_dir) / LINEAGE_FILE
-    return json.loads(p.read_text()) if p.is_file() else None
+read_lineage = rundir.read_stage

@@ -14,13 +14,8 @@ one is a single-task run (paper Fig. 4).
 from __future__ import annotations
 
 import argparse
-import csv
-import io
-import json
 import math
-import os
 import sys
-import tempfile
 from collections import defaultdict
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,43 +23,29 @@ from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from maniskill_dualher import protocol
+from maniskill_dualher import protocol, rundir
 from maniskill_dualher.config import ConfigError, RunConfig, format_ratio
-from maniskill_dualher.sweep import METHODS, RUNS_DIR, SWEEP_FILE
+from maniskill_dualher.methods import METHOD_SPECS
+from maniskill_dualher.paper import (PAPER_ADAPT_BUDGET, PAPER_ADAPT_STEPS, PAPER_RATIO, PAPER_TABLE3, PAPER_TABLE4,
+                                     PAPER_TABLE5, PAPER_TARGET, SCRATCH, paper_claims)
+from maniskill_dualher.fileio import atomic_write_text, atomic_write_with, csv_text, fmt
 
-# ---- the paper's numbers (Beyene & Han 2022), put beside ours
-PAPER_RATIO = (0.6, 0.4)                                 # the ratio the paper reports as best
-PAPER_TABLE4 = {(0.6, 0.4): "250", (0.5, 0.5): "154", (0.7, 0.3): "<75"}   # successful CloseMicrowave attempts
-PAPER_TABLE5 = {"sac_her_per": "<45", "dual_buffer": "250"}                # same metric, ours at 0.6/0.4
-PAPER_TARGET = "CloseMicrowave-v1"
-PAPER_ADAPT_BUDGET = "120 epochs x 200 episodes x 150 steps = 3.6M env steps"
-PAPER_ADAPT_STEPS = 120 * 200 * 150
-PAPER_TABLE3 = [  # (hyperparameter, paper value, how to read ours from a RunConfig)
-    ("learning rate", "0.0001", lambda c: c.sac.lr),
-    ("replay memory size", "10^7", lambda c: c.replay.capacity),
-    ("batch size", "256", lambda c: c.sac.batch_size),
-    ("discount factor", "0.99", lambda c: c.sac.gamma),
-    ("SAC entropy temperature alpha", "0.005 (fixed)",
-     lambda c: f"{c.sac.alpha} ({'learned' if c.sac.resolved_learn_alpha() else 'fixed'})"),
-    ("max steps per episode", "150", lambda c: c.max_episode_steps if c.max_episode_steps else "task default"),
-    ("PER prioritization exponent (paper's beta)", "0.5", lambda c: c.replay.priority_exponent),
-    ("HER goals per transition k", "4 single-task, 8 multi-task", lambda c: c.replay.her_k),
-    ("HER goal strategy", "k random states of the episode (Alg. 1)", lambda c: c.replay.her_strategy),
-    ("random-action steps", "100000", lambda c: c.sac.random_steps),
-    ("env steps per run", "ReachTarget 500, CloseBox/CloseMicrowave 200, adaptation 120 epochs x 30000",
-     lambda c: f"{c.env_id}: {c.total_steps}"),
-    ("dual buffer sampling ratio P(R)/P(E)", "0.6/0.4 (best of Table 4)",
-     lambda c: format_ratio(c.replay.ratio) if c.method == "dual_buffer" else None),
-    ("importance-sampling weights", "not used", lambda c: c.replay.is_weights),
-    ("SAC variant", "twin Q + V with target V (Fig. 1)", lambda c: c.sac.variant),
-    ("hidden layers", "not stated", lambda c: "x".join(map(str, c.sac.hidden))),
-    ("gradient updates per env step", "one per step (Alg. 1)", lambda c: c.sac.updates_per_step),
-    ("evaluation", "every 300 steps", lambda c: f"every {c.eval_every} steps x {c.eval_episodes} episodes"),
-]
+METHODS = tuple(METHOD_SPECS)
 
-# one colour per curve label in every panel, so a method keeps its colour across figures
-COLORS = {"sac": "tab:gray", "sac_her_per": "tab:blue", "dual_buffer 0.6/0.4": "tab:orange",
-          "dual_buffer 0.5/0.5": "tab:purple", "dual_buffer 0.7/0.3": "tab:brown"}
+EXTRA_COLORS = ("tab:purple", "tab:brown", "tab:green", "tab:red", "tab:pink", "tab:olive", "tab:cyan")
+
+
+def color_of(label: str) -> str:
+    """One colour per curve label in every panel: a method's own colour for its paper setting, a stable
+    extra colour for its other variants (e.g. other sampling ratios)."""
+    name, _, variant = label.replace(f" {SCRATCH}", "").partition(" ")
+    spec = METHOD_SPECS.get(name)
+    if spec is None:
+        return EXTRA_COLORS[sum(map(ord, label)) % len(EXTRA_COLORS)]
+    if not variant or variant == format_ratio(PAPER_RATIO):
+        return spec.color
+    return EXTRA_COLORS[sum(map(ord, variant)) % len(EXTRA_COLORS)]
+
 
 TABLE_COLUMNS = ["experiment", "task", "chain", "method", "ratio", "metric", "n_seeds", "seeds",
                  "mean", "std", "ci95_low", "ci95_high", "env_steps", "paper"]
@@ -76,7 +57,6 @@ METRICS = {  # metric name -> one score per run, read from its metrics rows
     "mean_eval_success_rate": lambda r: float(np.mean([row["eval_success_rate"] for row in r.rows])),
     "mean_eval_return": lambda r: float(np.mean([row["eval_return"] for row in r.rows])),
 }
-SCRATCH = "from scratch"
 
 
 # --------------------------------------------------------------------------- run folders
@@ -99,40 +79,25 @@ class Run:
         return SCRATCH if self.lineage.get("protocol") == "scratch" else " > ".join(self.lineage["chain"])
 
 
-def read_metrics(path: Path) -> List[Dict[str, float]]:
-    with open(path, newline="") as f:
-        rows = []
-        for r in csv.DictReader(f):
-            rows.append({k: _num(v) for k, v in r.items() if k is not None})
-    return rows
-
-
-def _num(v):
-    try:
-        return float(v)
-    except (TypeError, ValueError):
-        return v
-
-
 def load_runs(folder: Path) -> Tuple[List[Run], List[str]]:
     """Finished runs of the folder's sweep (or every run folder); also the unfinished ones' names."""
-    sweep_file = folder / SWEEP_FILE
-    if sweep_file.is_file():
-        rels = json.loads(sweep_file.read_text())["runs"]
+    sweep = rundir.read_sweep(folder)
+    if sweep is not None:
+        rels = sweep["runs"]
     else:
-        rels = sorted(str(p.parent.relative_to(folder)) for p in folder.rglob("config.json"))
+        rels = sorted(str(p.parent.relative_to(folder)) for p in folder.rglob(rundir.CONFIG))
     runs, unfinished = [], []
     for rel in rels:
         d = folder / rel
-        if not (protocol.is_done(d) and (d / "metrics.csv").is_file() and (d / "config.json").is_file()):
+        if not (rundir.is_done(d) and (d / rundir.METRICS).is_file() and (d / rundir.CONFIG).is_file()):
             unfinished.append(rel)
             continue
-        rows = read_metrics(d / "metrics.csv")
+        rows = rundir.read_metrics(d)
         if not rows:
             unfinished.append(rel)
             continue
-        cfg = RunConfig.from_dict(json.loads((d / "config.json").read_text()))
-        runs.append(Run(rel, cfg, rows, protocol.read_lineage(d), True))
+        cfg = RunConfig.from_dict(rundir.read_json(d / rundir.CONFIG))
+        runs.append(Run(rel, cfg, rows, rundir.read_stage(d), True))
     return runs, unfinished
 
 
@@ -155,15 +120,10 @@ def summarize(values: Sequence[float], resamples: int = 10_000, seed: int = 0) -
             "std": float(x.std(ddof=1)) if x.size > 1 else math.nan, "ci95_low": lo, "ci95_high": hi}
 
 
-def fmt(v) -> str:
-    if isinstance(v, float):
-        return "nan" if math.isnan(v) else f"{v:.6g}"
-    return "" if v is None else str(v)
-
-
 # --------------------------------------------------------------------------- grouping
 def _ratio_of(run: Run) -> str:
-    return format_ratio(run.cfg.replay.ratio) if run.cfg.method == "dual_buffer" else ""
+    spec = METHOD_SPECS.get(run.cfg.method)
+    return spec.tag(run.cfg) if spec else ""
 
 
 def _method_order(m: str) -> int:
@@ -214,12 +174,15 @@ def paper_table5(task, chain, method, ratio, metric) -> str:
     return PAPER_TABLE5.get(method, "")
 
 
+def _has_ratio(method: str) -> bool:
+    return method in METHOD_SPECS and METHOD_SPECS[method].sampling_ratio
+
+
 def build_tables(runs: List[Run], resamples: int = 10_000) -> Dict[str, List[dict]]:
     adapt = group_runs(runs, "adaptation")
-    t4 = {k: v for k, v in adapt.items() if k[2] == "dual_buffer" and k[1] != SCRATCH}
+    t4 = {k: v for k, v in adapt.items() if _has_ratio(k[2]) and k[1] != SCRATCH}
     t4 = dict(sorted(t4.items(), key=lambda kv: (_task_order(kv[0][0]), kv[0][1], kv[0][4], kv[0][3])))
-    t5 = {k: v for k, v in adapt.items()
-          if k[2] == "sac_her_per" or (k[2] == "dual_buffer" and k[3] == format_ratio(PAPER_RATIO))}
+    t5 = {k: v for k, v in adapt.items() if not _has_ratio(k[2]) or k[3] == format_ratio(PAPER_RATIO)}
     single = group_runs(runs, "single")
     return {
         "table4_sampling_ratio.csv": table_rows("ratios", t4, ["successful_train_episodes"], paper_table4, resamples),
@@ -263,30 +226,10 @@ def task_rows() -> Tuple[Optional[List[dict]], str]:
 
 
 # --------------------------------------------------------------------------- writing
-def csv_text(rows: List[dict], columns: Optional[List[str]] = None) -> str:
-    if columns is None:
-        columns = []
-        for r in rows:
-            columns += [k for k in r if k not in columns]
-    buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=columns, lineterminator="\n")
-    w.writeheader()
-    for r in rows:
-        w.writerow({k: fmt(r.get(k)) for k in columns})
-    return buf.getvalue()
-
-
 def save_figure(fig, path: Path) -> None:
     """Atomic PNG write (temp file in the same folder, then rename)."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix="." + path.name + ".", suffix=".png")
-    os.close(fd)
-    try:
-        fig.savefig(tmp, dpi=110, bbox_inches="tight", metadata={"Software": None})
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    atomic_write_with(path, lambda tmp: fig.savefig(tmp, format="png", dpi=110, bbox_inches="tight",
+                                                     metadata={"Software": None}))
 
 
 # --------------------------------------------------------------------------- plots
@@ -304,7 +247,7 @@ def _plot_groups(ax, groups: Dict[str, List[Run]], key: str, title: str, ylabel:
     for label, runs in groups.items():
         x, m, lo, hi = curve(runs, key)
         base = label.replace(f" {SCRATCH}", "")
-        (line,) = ax.plot(x, m, marker="o", ms=3, label=f"{label} (n={len(runs)})", color=COLORS.get(base),
+        (line,) = ax.plot(x, m, marker="o", ms=3, label=f"{label} (n={len(runs)})", color=color_of(base),
                           linestyle="--" if base != label else "-")
         ax.fill_between(x, lo, hi, color=line.get_color(), alpha=0.2)
     ax.set_title(title, fontsize=10)
@@ -352,8 +295,8 @@ def plot_fig5(runs: List[Run], path: Path) -> bool:
     adapt = {k: v for k, v in adapt.items() if k[0] == target}
     paper_ratio = format_ratio(PAPER_RATIO)
     methods = {k[2] + (f" {k[3]}" if k[3] else "") + (f" {SCRATCH}" if k[1] == SCRATCH else ""): v
-               for k, v in adapt.items() if k[2] != "dual_buffer" or k[3] == paper_ratio}
-    ratios = {f"dual_buffer {k[3]}": v for k, v in adapt.items() if k[2] == "dual_buffer" and k[1] != SCRATCH}
+               for k, v in adapt.items() if not _has_ratio(k[2]) or k[3] == paper_ratio}
+    ratios = {f"{k[2]} {k[3]}": v for k, v in adapt.items() if _has_ratio(k[2]) and k[1] != SCRATCH}
     fig, axes = plt.subplots(2, 2, figsize=(11, 8.5))
     _plot_groups(axes[0, 0], methods, "eval_return", f"{target} adaptation: evaluation return",
                  "return per episode (sparse reward, sum)")
@@ -373,48 +316,8 @@ def plot_fig5(runs: List[Run], path: Path) -> bool:
 
 
 # --------------------------------------------------------------------------- claims
-@dataclass
-class Claim:
-    key: str
-    text: str            # "A > B on ..." in the paper's direction
-    paper: str           # what the paper reports
-    metric: str          # a METRICS key
-    side_a: Tuple[str, ...]  # group selector: (kind, task, chain, method, ratio)
-    side_b: Tuple[str, ...]
-    relative_margin: bool = False  # margin = 10% of the larger mean (counts) instead of an absolute 0.1
-
-
 RATE_MARGIN = 0.1      # success rates and sparse returns per episode (in [0, 1]): 10 percentage points
 COUNT_MARGIN = 0.1     # counts: 10% of the larger side's mean
-
-
-def paper_claims(target: str = PAPER_TARGET, tasks: Sequence[str] = protocol.TASKS) -> List[Claim]:
-    """The paper's claims (a)-(h), each as side A > side B on one metric."""
-    chain = " > ".join(protocol.TRANSFER_ORDER)
-    r = format_ratio(PAPER_RATIO)
-    dual = ("adaptation", target, chain, "dual_buffer", r)
-    her = ("adaptation", target, chain, "sac_her_per", "")
-    out = [
-        Claim("a", f"dual_buffer > sac_her_per: successful {target} adaptation episodes",
-              "Table 5: 250 vs <45", "successful_train_episodes", dual, her, relative_margin=True),
-        Claim("b", f"dual_buffer > sac_her_per: {target} adaptation evaluation return (mean over the curve)",
-              "Fig. 5: dual buffer's curve above", "mean_eval_return", dual, her),
-        Claim("c", f"ratio 0.6/0.4 > 0.5/0.5: successful {target} adaptation episodes", "Table 4: 250 vs 154",
-              "successful_train_episodes", dual, dual[:4] + ("0.5/0.5",), relative_margin=True),
-        Claim("d", f"ratio 0.5/0.5 > 0.7/0.3: successful {target} adaptation episodes", "Table 4: 154 vs <75",
-              "successful_train_episodes", dual[:4] + ("0.5/0.5",), dual[:4] + ("0.7/0.3",), relative_margin=True),
-    ]
-    for key, task in zip("efg", tasks):
-        out.append(Claim(key, f"dual_buffer > sac: {task} single-task evaluation return (mean over the curve)",
-                         "Fig. 4: dual buffer's curve above SAC's", "mean_eval_return",
-                         ("single", task, "", "dual_buffer", r), ("single", task, "", "sac", "")))
-    out.append(Claim("h", f"transfer > from scratch: dual_buffer's successful {target} episodes in the adaptation "
-                          "budget", "assumed (section 3.1), never tested", "successful_train_episodes",
-                     dual, ("adaptation", target, SCRATCH, "dual_buffer", r), relative_margin=True))
-    out.append(Claim("h'", f"transfer > from scratch: sac_her_per's successful {target} episodes in the adaptation "
-                           "budget", "not in the paper", "successful_train_episodes",
-                     her, ("adaptation", target, SCRATCH, "sac_her_per", ""), relative_margin=True))
-    return out
 
 
 def _side(runs: List[Run], sel: Tuple[str, ...]) -> List[Run]:
@@ -476,7 +379,7 @@ def md_table(rows: List[dict], columns: List[str]) -> str:
 
 def summary_md(folder: Path, runs: List[Run], unfinished: List[str], tables: Dict[str, List[dict]],
                hyper: List[dict], tasks_note: str, figures: List[str], claims: List[dict]) -> str:
-    sweep = json.loads((folder / SWEEP_FILE).read_text()) if (folder / SWEEP_FILE).is_file() else {}
+    sweep = rundir.read_sweep(folder) or {}
     seeds = sorted({r.cfg.seed for r in runs})
     adapt_steps = sorted({r.cfg.total_steps for r in runs if r.lineage and r.lineage["adaptation"]})
     single_steps = sorted({(r.cfg.env_id, r.cfg.total_steps) for r in runs if r.lineage is None},
@@ -532,14 +435,14 @@ def build_report(folder, resamples: int = 10_000) -> List[Path]:
     tables = build_tables(runs, resamples)
     written = []
     for name, rows in tables.items():
-        protocol.atomic_write_text(folder / name, csv_text(rows, TABLE_COLUMNS))
+        atomic_write_text(folder / name, csv_text(rows, TABLE_COLUMNS))
         written.append(folder / name)
     hyper = hyperparameter_rows(runs)
-    protocol.atomic_write_text(folder / "hyperparameters.csv", csv_text(hyper))
+    atomic_write_text(folder / "hyperparameters.csv", csv_text(hyper))
     written.append(folder / "hyperparameters.csv")
     trows, tasks_note = task_rows()
     if trows is not None:
-        protocol.atomic_write_text(folder / "tasks.csv", csv_text(trows))
+        atomic_write_text(folder / "tasks.csv", csv_text(trows))
         written.append(folder / "tasks.csv")
     figures = []
     for name, fn in (("fig4_single_task.png", plot_fig4), ("fig5_multitask.png", plot_fig5)):
@@ -547,9 +450,9 @@ def build_report(folder, resamples: int = 10_000) -> List[Path]:
             figures.append(name)
             written.append(folder / name)
     claims = claim_rows(runs, resamples)
-    protocol.atomic_write_text(folder / "claims.csv", csv_text(claims, CLAIM_COLUMNS))
+    atomic_write_text(folder / "claims.csv", csv_text(claims, CLAIM_COLUMNS))
     written.append(folder / "claims.csv")
-    protocol.atomic_write_text(folder / "summary.md",
+    atomic_write_text(folder / "summary.md",
                                summary_md(folder, runs, unfinished, tables, hyper, tasks_note, figures, claims))
     written.append(folder / "summary.md")
     return written

@@ -21,15 +21,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Dict, List, Optional, Sequence, Tuple
 
-from maniskill_dualher import protocol
-from maniskill_dualher.config import ConfigError, ReplayConfig, RunConfig, SACConfig, format_ratio, parse_ratio
+from maniskill_dualher import protocol, rundir
+from maniskill_dualher.config import ConfigError, ReplayConfig, RunConfig, SACConfig, parse_ratio
+from maniskill_dualher.methods import METHOD_SPECS, method_spec
+from maniskill_dualher.paper import PAPER_RATIOS
+from maniskill_dualher.rundir import RUNS_DIR, SWEEP
 
-METHODS = ("sac", "sac_her_per", "dual_buffer")
-TRANSFER_METHODS = ("sac_her_per", "dual_buffer")      # paper Fig. 5 / Table 5
+METHODS = tuple(METHOD_SPECS)
+TRANSFER_METHODS = tuple(m for m, s in METHOD_SPECS.items() if s.transfer)      # paper Fig. 5 / Table 5
+RATIO_METHODS = tuple(m for m, s in METHOD_SPECS.items() if s.sampling_ratio)  # paper Table 4
 EXPERIMENTS = ("single", "transfer", "ratios", "scratch")
-PAPER_RATIOS = ((0.5, 0.5), (0.6, 0.4), (0.7, 0.3))   # paper Table 4
-SWEEP_FILE = "sweep.json"
-RUNS_DIR = "runs"
 
 
 # =========================================================================== BUDGETS: one place per preset
@@ -165,8 +166,9 @@ def build_grid(d: dict) -> List[Node]:
     transfer_methods = [m for m in d["methods"] if m in TRANSFER_METHODS]
     if "transfer" in d["experiments"]:
         chains += [("transfer", m, None, order, steps) for m in transfer_methods]
-    if "ratios" in d["experiments"] and "dual_buffer" in d["methods"]:
-        chains += [("transfer", "dual_buffer", tuple(r), order, steps) for r in d["ratios"]]
+    if "ratios" in d["experiments"]:
+        chains += [("transfer", m, tuple(r), order, steps) for m in d["methods"] if m in RATIO_METHODS
+                   for r in d["ratios"]]
     if "scratch" in d["experiments"]:  # the control: the target task from scratch, adaptation budget and settings
         chains += [("scratch", m, None, order[-1:], steps[-1:]) for m in transfer_methods]
     seeds = d.get("chain_seeds", d["seeds"])
@@ -179,7 +181,8 @@ def build_grid(d: dict) -> List[Node]:
             parent = None
             for i, cfg in enumerate(stages):
                 rel = f"{chain_rel}/{protocol.stage_dirname(stages, i, d['carry_replay'])}"
-                tag = f" ratio {format_ratio(cfg.replay.ratio)}" if method == "dual_buffer" else ""
+                variant = method_spec(method).tag(cfg)
+                tag = f" ratio {variant}" if variant else ""
                 add(Node(rel, cfg, f"{kind} {method}{tag} seed {seed} stage {i} {cfg.env_id}", parent=parent,
                          stages=stages, stage=i, carry_replay=d["carry_replay"]))
                 parent = rel
@@ -324,8 +327,8 @@ def definition_from_args(a: argparse.Namespace) -> dict:
         "budget": {**dataclasses.asdict(b), "seeds": list(b.seeds), "hidden": list(b.hidden),
                    "transfer_seeds": None if b.transfer_seeds is None else list(b.transfer_seeds)},
     }
-    if "ratios" in d["experiments"] and "dual_buffer" not in d["methods"]:
-        raise ConfigError("experiment 'ratios' needs method dual_buffer (it varies the dual buffer's ratio)")
+    if "ratios" in d["experiments"] and not set(d["methods"]) & set(RATIO_METHODS):
+        raise ConfigError(f"experiment 'ratios' needs method {' or '.join(RATIO_METHODS)} (it varies the R/E ratio)")
     if "transfer" in d["experiments"] and not set(d["methods"]) & set(TRANSFER_METHODS):
         raise ConfigError(f"experiment 'transfer' needs method {' or '.join(TRANSFER_METHODS)}")
     return d
@@ -335,7 +338,7 @@ def check_out_folder(out: Path, d: dict, force: bool) -> None:
     """Refuse an out folder that holds another sweep (or foreign runs) unless --force."""
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out {out} exists and is not a folder")
-    f = out / SWEEP_FILE
+    f = out / SWEEP
     if f.is_file():
         try:
             old = json.loads(f.read_text())
@@ -347,7 +350,7 @@ def check_out_folder(out: Path, d: dict, force: bool) -> None:
                               f"use another --out, or --force to make this one current")
         return
     ours = set(d["runs"])
-    foreign = [str(p.parent.relative_to(out)) for p in sorted((out / RUNS_DIR).rglob("config.json"))
+    foreign = [str(p.parent.relative_to(out)) for p in sorted((out / RUNS_DIR).rglob(rundir.CONFIG))
                if str(p.parent.relative_to(out)) not in ours] if (out / RUNS_DIR).is_dir() else []
     if foreign and not force:
         raise ConfigError(f"{out} holds {len(foreign)} runs of a different config (e.g. {foreign[0]}); "
@@ -366,11 +369,13 @@ def make_parser() -> argparse.ArgumentParser:
         description=(
             "Run the paper's experiments (Beyene & Han 2022) and build its tables and plots.\n\n"
             "experiments:\n"
-            "  single    each task x methods sac, sac_her_per, dual_buffer (paper Fig. 4)\n"
-            "  transfer  ReachTarget -> CloseBox -> CloseMicrowave for sac_her_per and dual_buffer; each stage\n"
+            f"  single    each task x methods {', '.join(METHODS)} (paper Fig. 4)\n"
+            f"  transfer  ReachTarget -> CloseBox -> CloseMicrowave for {', '.join(TRANSFER_METHODS)}; each stage\n"
             "            starts from the previous stage's networks and replay; HER k=8 (paper Fig. 5, Table 5)\n"
-            "  ratios    dual_buffer transfer with R/E sampling ratios 0.5/0.5, 0.6/0.4, 0.7/0.3 in the adaptation\n"
-            "            stage (paper Table 4); shares the source stages, and the 0.6/0.4 chain, with 'transfer'\n\n"
+            f"  ratios    {', '.join(RATIO_METHODS)} transfer with R/E sampling ratios 0.5/0.5, 0.6/0.4, 0.7/0.3 in the\n"
+            "            adaptation stage (paper Table 4); shares the source stages, and the 0.6/0.4 chain, with 'transfer'\n"
+            "  scratch   the control: the chain's last task trained from scratch with the adaptation stage's budget\n"
+            "            and settings, for each transfer method (does pretraining help?)\n\n"
             "Runs are folders <out>/runs/...-<config hash>: finished ones are skipped, interrupted ones resume\n"
             "from their checkpoint, so rerunning a killed sweep finishes it with the same results. The sweep's\n"
             "definition is kept in <out>/sweep.json; an <out> holding a different sweep is refused (exit 2)\n"
@@ -588,17 +593,26 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     except ConfigError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
+    workers = a.workers or (None if a.ray_address else min(2, os.cpu_count() or 1))
+    todo_cfgs = [n.cfg for n in nodes if not protocol.is_done(out / n.rel)]
     if a.dry_run:
         for n in nodes:
             state = "done" if protocol.is_done(out / n.rel) else "todo"
             print(f"{state}  {n.rel}")
-        total = sum(n.cfg.total_steps for n in nodes if not protocol.is_done(out / n.rel))
+        if todo_cfgs:
+            from maniskill_dualher.cost import describe, grid_cost
+            for line in describe(grid_cost(todo_cfgs), workers or 1):
+                print(line)
+        total = sum(c.total_steps for c in todo_cfgs)
         print(f"{len(nodes)} runs; {total} env steps to go; nothing written (--dry-run)")
         return 0
 
-    workers = a.workers or (None if a.ray_address else min(2, os.cpu_count() or 1))
-    protocol.atomic_write_text(out / SWEEP_FILE, json.dumps(d, indent=2, sort_keys=True) + "\n")
+    rundir.write_json(out / SWEEP, d)
     print(f"sweep {a.preset}: {len(nodes)} runs in {out} on {a.backend} backend", flush=True)
+    if todo_cfgs:
+        from maniskill_dualher.cost import describe, grid_cost
+        for line in describe(grid_cost(todo_cfgs), workers or 1):
+            print(line, flush=True)
     backend = LocalBackend(workers) if a.backend == "local" else RayBackend(workers, a.ray_address)
     cancel = True
     try:

@@ -16,9 +16,7 @@ Episodes end on success when ``terminate_on_success`` (the paper, section 4.1) o
 from __future__ import annotations
 
 import argparse
-import csv
 import dataclasses
-import io
 import json
 import math
 import sys
@@ -30,25 +28,14 @@ import numpy as np
 import torch
 
 from .config import ConfigError, ReplayConfig, RunConfig, SACConfig, parse_ratio
+from . import rundir
 from .fileio import atomic_torch_save, atomic_write_text
+from .rundir import CHECKPOINT
 from .envs import EVAL_SEED_BASE, BatchEnv, make_env, train_episode_seed
 from .replay.base import Episode
 from .sac import SAC
 
-METRIC_COLUMNS = ["env_steps", "eval_return", "eval_success_rate", "eval_success_at_end", "eval_episode_length",
-                  "train_episodes", "train_successes", "train_episode_length", "updates", "wall_time_s"]
 DEMO_SEED_BASE = 2_000_000_000
-CHECKPOINT = "checkpoint.pt"
-
-
-def rows_to_csv(rows: List[dict]) -> str:
-    cols = list(METRIC_COLUMNS) + sorted({k for r in rows for k in r} - set(METRIC_COLUMNS))
-    buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=cols, lineterminator="\n")
-    w.writeheader()
-    for r in rows:
-        w.writerow({k: r.get(k, "") for k in cols})
-    return buf.getvalue()
 
 
 def _differing_keys(a: dict, b: dict, prefix: str = "") -> List[str]:
@@ -117,12 +104,12 @@ class Trainer:
         elif init_state is not None:
             self._init_from(init_state, carry_replay)
         self.out.mkdir(parents=True, exist_ok=True)
-        atomic_write_text(self.out / "config.json", cfg.to_json() + "\n")
-        meta = {"init_from": str(init_from) if init_from else None, "carry_replay": bool(carry_replay)}
-        atomic_write_text(self.out / "lineage.json", json.dumps(meta, indent=2) + "\n")
+        atomic_write_text(self.out / rundir.CONFIG, cfg.to_json() + "\n")
+        rundir.write_json(self.out / rundir.ORIGIN, {"init_from": str(init_from) if init_from else None,
+                                                     "carry_replay": bool(carry_replay)})
 
     def _check_out_dir(self) -> None:
-        cfg_path = self.out / "config.json"
+        cfg_path = self.out / rundir.CONFIG
         if cfg_path.is_file():
             try:
                 old = json.loads(cfg_path.read_text())
@@ -261,10 +248,9 @@ class Trainer:
         envs the episodes still in flight then are cut (stored as time-limit truncations) and every env
         restarts, so a checkpoint never holds half an episode.
         """
-        cfg, s, N = self.cfg, self.cfg.sac, self.spec.num_envs
-        done_path = self.out / "done.json"
-        if done_path.is_file():
-            return json.loads(done_path.read_text())["final"]
+        cfg, N = self.cfg, self.spec.num_envs
+        if rundir.is_done(self.out):
+            return rundir.read_done(self.out)["final"]
         from torch.utils.tensorboard import SummaryWriter
         from tqdm import tqdm
         self.tb = SummaryWriter(str(self.out), purge_step=self.env_steps if self.resumed else None)
@@ -322,7 +308,7 @@ class Trainer:
             bar.close()
             self.tb.close()
         final = dict(self.rows[-1])
-        atomic_write_text(done_path, json.dumps({"final": final, "demo_env_steps": self.demo_env_steps}, indent=2) + "\n")
+        rundir.write_done(self.out, final, demo_env_steps=self.demo_env_steps)
         if not self.cfg_keep_replay:
             drop_replay(self.out)
         return final
@@ -399,7 +385,7 @@ class Trainer:
         for k, v in row.items():
             if k != "env_steps" and isinstance(v, (int, float)) and not k.startswith("replay_"):
                 self.tb.add_scalar(f"charts/{k}", v, self.env_steps)
-        atomic_write_text(self.out / "metrics.csv", rows_to_csv(self.rows))
+        rundir.write_metrics(self.out, self.rows)
         return row
 
 
@@ -459,9 +445,8 @@ def run_training(cfg: RunConfig, out_dir, init_from=None, carry_replay: bool = F
                  keep_replay: bool = False) -> Optional[dict]:
     """Train (or resume, or return the result of) one run in ``out_dir``; returns the final metrics row
     (None if ``stop_at`` paused it early)."""
-    done = Path(out_dir) / "done.json"
-    if done.is_file():
-        return json.loads(done.read_text())["final"]
+    if rundir.is_done(out_dir):
+        return rundir.read_done(out_dir)["final"]
     trainer = Trainer(cfg, out_dir, init_from=init_from, carry_replay=carry_replay, show_progress=show_progress,
                       keep_replay=keep_replay)
     try:

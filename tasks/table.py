@@ -7,10 +7,6 @@ Read off the live environments (gym.make with default arguments), so the table c
 from __future__ import annotations
 
 import argparse
-import csv
-import io
-import os
-import tempfile
 
 import gymnasium as gym
 
@@ -46,22 +42,9 @@ def task_rows() -> list:
 
 
 def write_csv(rows, path: str) -> None:
-    """Atomic write: a temp file in the target directory, then os.replace."""
-    buf = io.StringIO()
-    writer = csv.DictWriter(buf, fieldnames=COLUMNS, lineterminator="\n")
-    writer.writeheader()
-    writer.writerows(rows)
-    directory = os.path.dirname(os.path.abspath(path))
-    os.makedirs(directory, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=directory, prefix=".tasks-", suffix=".csv.tmp")
-    try:
-        with os.fdopen(fd, "w", newline="") as f:
-            f.write(buf.getvalue())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    """Atomic write (the project's one writer: temp file in the same folder, then rename)."""
+    from maniskill_dualher.fileio import atomic_write_text, csv_text
+    atomic_write_text(path, csv_text(rows, list(COLUMNS)))
 
 
 def main(argv=None) -> None:

@@ -1,8 +1,28 @@
-"""Helpers shared by the hinge-task tests (CloseBox, CloseMicrowave): set a hinge task's state, read contacts."""
+"""Helpers shared by the hinge-task tests (CloseBox, CloseMicrowave): make a task's env (and a module fixture
+of it), set a hinge task's state, read contacts."""
+import gymnasium as gym
 import numpy as np
+import pytest
 import torch
 
 from mani_skill.utils.structs import Pose
+
+CONTROL_MODE = "pd_joint_delta_pos"
+
+
+def make_env(env_id: str):
+    """The hinge tests' env: ``gym.make(env_id)`` (CPU, one env) with joint-delta control."""
+    return gym.make(env_id, control_mode=CONTROL_MODE)
+
+
+def env_fixture(env_id: str):
+    """A module-scoped ``env`` fixture of ``make_env(env_id)``; bind it in the test module as ``env = ...``."""
+    @pytest.fixture(scope="module", name="env")
+    def _env():
+        e = make_env(env_id)
+        yield e
+        e.close()
+    return _env
 
 
 def robot_contact_force(env, art) -> float:
@@ -27,3 +47,12 @@ def set_state(env, angle=None, center=None, yaw=None) -> None:
     if angle is not None:
         art.set_qpos(torch.tensor([[angle]], dtype=torch.float32))
         art.set_qvel(torch.zeros((1, 1)))
+
+
+def goals_at_angle(env, angle: float, seed: int = 4):
+    """Reset with ``seed``, set the hinge to ``angle`` and evaluate: ``(info, achieved_goal, desired_goal)``,
+    the goals of the (single) env as (3,) tensors."""
+    env.reset(seed=seed)
+    set_state(env, angle=angle)
+    info = env.unwrapped.evaluate()
+    return info, info["achieved_goal"][0], info["desired_goal"][0]

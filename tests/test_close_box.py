@@ -2,7 +2,6 @@
 in tests/test_tasks.py)."""
 import itertools
 
-import gymnasium as gym
 import numpy as np
 import pytest
 
@@ -10,26 +9,19 @@ import maniskill_dualher  # noqa: F401  (registers the tasks)
 from tasks.close_box import CloseBoxEnv
 from tasks.solvers import make_solver
 
-from articulated import set_state
+from articulated import env_fixture, goals_at_angle, set_state
 
 LO_ANGLE, HI_ANGLE = CloseBoxEnv.INIT_ANGLE_RANGE
 
 
-@pytest.fixture(scope="module")
-def env():
-    e = gym.make("CloseBox-v1", control_mode="pd_joint_delta_pos")
-    yield e
-    e.close()
+env = env_fixture("CloseBox-v1")
 
 
 @pytest.mark.parametrize("angle", [0.03, 0.7, HI_ANGLE])
 def test_free_edge_rises_with_the_lid(env, angle):
     """Horizontal hinge on the robot's side: opening lifts the free edge out of the box top plane."""
     base = env.unwrapped
-    env.reset(seed=4)
-    set_state(env, angle=angle)
-    info = base.evaluate()
-    ag, dg = info["achieved_goal"][0], info["desired_goal"][0]
+    _, ag, dg = goals_at_angle(env, angle)
     assert float(ag[2] - dg[2]) == pytest.approx(base.LID_LENGTH * np.sin(angle), abs=2e-5)
 
 

@@ -2,7 +2,6 @@
 contract in tests/test_tasks.py)."""
 import itertools
 
-import gymnasium as gym
 import numpy as np
 import pytest
 import torch
@@ -12,16 +11,12 @@ from mani_skill.utils.geometry import rotation_conversions as rc
 from tasks.close_microwave import CloseMicrowaveEnv
 from tasks.solvers import make_solver
 
-from articulated import robot_contact_force, set_state
+from articulated import env_fixture, goals_at_angle, robot_contact_force, set_state
 
 LO_ANGLE, HI_ANGLE = CloseMicrowaveEnv.INIT_ANGLE_RANGE
 
 
-@pytest.fixture(scope="module")
-def env():
-    e = gym.make("CloseMicrowave-v1", control_mode="pd_joint_delta_pos")
-    yield e
-    e.close()
+env = env_fixture("CloseMicrowave-v1")
 
 
 def door_angle(env) -> float:
@@ -72,10 +67,7 @@ def test_reset_starts_clear_outside_the_door(env):
 def test_free_edge_swings_horizontally_towards_the_robot(env, angle):
     """Vertical hinge: the free edge moves in the horizontal plane, towards the robot (-x in the body frame)."""
     base = env.unwrapped
-    env.reset(seed=4)
-    set_state(env, angle=angle)
-    info = base.evaluate()
-    ag, dg = info["achieved_goal"][0], info["desired_goal"][0]
+    _, ag, dg = goals_at_angle(env, angle)
     assert float(ag[2] - dg[2]) == pytest.approx(0.0, abs=1e-5)
     yaw = 2 * float(torch.atan2(base.microwave.pose.q[0, 3], base.microwave.pose.q[0, 0]))
     front = torch.tensor([np.cos(yaw), np.sin(yaw), 0.0], dtype=torch.float32)  # body +x (away from the robot)

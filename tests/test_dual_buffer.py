@@ -4,7 +4,7 @@ import pytest
 import torch
 
 from maniskill_dualher.config import ConfigError, RunConfig
-from maniskill_dualher.methods import METHODS, make_method
+from maniskill_dualher.methods import METHOD_SPECS as METHODS, make_method
 
 from fakes import point_episode, spec
 
@@ -144,7 +144,7 @@ def test_sac_her_per_stores_real_plus_k_hindsight():
 
 
 def test_registry_errors_are_one_line_config_errors():
-    with pytest.raises(ConfigError, match=r"unknown method 'nope' \(known: dual_buffer, sac, sac_her_per\)"):
+    with pytest.raises(ConfigError, match=r"unknown method 'nope' \(known: sac, sac_her_per, dual_buffer\)"):
         make_method(_cfg("nope"), spec(), np.random.default_rng(0))
     for name in ("sac_her_per", "dual_buffer"):
         with pytest.raises(ConfigError, match="needs a goal environment") as e:

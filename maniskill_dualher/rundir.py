@@ -1,0 +1,97 @@
+"""The run-folder and sweep-folder contract: file names and the helpers that read and write them.
+
+A run folder (written by ``train.py``; a transfer stage also by ``protocol.py``)::
+
+    config.json     the RunConfig (a different config in the same folder is refused)
+    metrics.csv     one row per evaluation (METRIC_COLUMNS first)
+    checkpoint.pt   networks, optimizer, replay (until finished, or kept for a successor stage), RNG
+    lineage.json    where its networks (and replay) came from, if transferred
+    stage.json      its place in a transfer chain, or the scratch control ("protocol": "transfer"|"scratch")
+    done.json       the final metrics row, once finished
+    events.out.*    TensorBoard
+
+A sweep folder holds ``sweep.json`` (the definition: which runs exist) and ``runs/...``; the report
+writes its tables, plots and summary.md beside them. Every write is atomic (``fileio``).
+"""
+from __future__ import annotations
+
+import csv
+import io
+import json
+from pathlib import Path
+from typing import Dict, List, Optional, Union
+
+from .fileio import atomic_write_text
+
+PathLike = Union[str, Path]
+
+CONFIG = "config.json"
+METRICS = "metrics.csv"
+CHECKPOINT = "checkpoint.pt"
+ORIGIN = "lineage.json"
+STAGE = "stage.json"
+DONE = "done.json"
+SWEEP = "sweep.json"
+RUNS_DIR = "runs"
+
+METRIC_COLUMNS = ["env_steps", "eval_return", "eval_success_rate", "eval_success_at_end", "eval_episode_length",
+                  "train_episodes", "train_successes", "train_episode_length", "updates", "wall_time_s"]
+
+
+def is_done(run_dir: PathLike) -> bool:
+    return (Path(run_dir) / DONE).is_file()
+
+
+def read_done(run_dir: PathLike) -> dict:
+    return json.loads((Path(run_dir) / DONE).read_text())
+
+
+def write_done(run_dir: PathLike, final: dict, **extra) -> None:
+    atomic_write_text(Path(run_dir) / DONE, json.dumps({"final": final, **extra}, indent=2) + "\n")
+
+
+def metrics_text(rows: List[dict]) -> str:
+    cols = list(METRIC_COLUMNS) + sorted({k for r in rows for k in r} - set(METRIC_COLUMNS))
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=cols, lineterminator="\n")
+    w.writeheader()
+    for r in rows:
+        w.writerow({k: r.get(k, "") for k in cols})
+    return buf.getvalue()
+
+
+def write_metrics(run_dir: PathLike, rows: List[dict]) -> None:
+    atomic_write_text(Path(run_dir) / METRICS, metrics_text(rows))
+
+
+def _num(v):
+    try:
+        return float(v)
+    except (TypeError, ValueError):
+        return v
+
+
+def read_metrics(run_dir: PathLike) -> List[Dict[str, float]]:
+    with open(Path(run_dir) / METRICS, newline="") as f:
+        return [{k: _num(v) for k, v in r.items() if k is not None} for r in csv.DictReader(f)]
+
+
+def read_json(path: PathLike) -> Optional[dict]:
+    p = Path(path)
+    return json.loads(p.read_text()) if p.is_file() else None
+
+
+def read_stage(run_dir: PathLike) -> Optional[dict]:
+    return read_json(Path(run_dir) / STAGE)
+
+
+def write_stage(run_dir: PathLike, stage: dict) -> None:
+    atomic_write_text(Path(run_dir) / STAGE, json.dumps(stage, indent=2, sort_keys=True))
+
+
+def write_json(path: PathLike, obj: dict) -> None:
+    atomic_write_text(path, json.dumps(obj, indent=2, sort_keys=True) + "\n")
+
+
+def read_sweep(folder: PathLike) -> Optional[dict]:
+    return read_json(Path(folder) / SWEEP)
