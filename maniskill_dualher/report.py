@@ -30,7 +30,6 @@ from maniskill_dualher.paper import (PAPER_ADAPT_BUDGET, PAPER_ADAPT_STEPS, PAPE
                                      PAPER_TABLE5, PAPER_TARGET, SCRATCH, paper_claims)
 from maniskill_dualher.fileio import atomic_write_text, atomic_write_with, csv_text, fmt
 
-METHODS = tuple(METHOD_SPECS)
 
 EXTRA_COLORS = ("tab:purple", "tab:brown", "tab:green", "tab:red", "tab:pink", "tab:olive", "tab:cyan")
 
@@ -127,7 +126,8 @@ def _ratio_of(run: Run) -> str:
 
 
 def _method_order(m: str) -> int:
-    return METHODS.index(m) if m in METHODS else len(METHODS)
+    names = list(METHOD_SPECS)
+    return names.index(m) if m in names else len(names)
 
 
 def _task_order(t: str) -> int:

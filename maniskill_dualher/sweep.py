@@ -27,9 +27,19 @@ from maniskill_dualher.methods import METHOD_SPECS, method_spec
 from maniskill_dualher.paper import PAPER_RATIOS
 from maniskill_dualher.rundir import RUNS_DIR, SWEEP
 
-METHODS = tuple(METHOD_SPECS)
-TRANSFER_METHODS = tuple(m for m, s in METHOD_SPECS.items() if s.transfer)      # paper Fig. 5 / Table 5
-RATIO_METHODS = tuple(m for m, s in METHOD_SPECS.items() if s.sampling_ratio)  # paper Table 4
+
+
+# read from the registry at call time, so a method registered later (a plugin, a test) takes part
+def _methods() -> Tuple[str, ...]:
+    return tuple(METHOD_SPECS)
+
+
+def _transfer_methods() -> Tuple[str, ...]:   # paper Fig. 5 / Table 5, and the scratch control
+    return tuple(m for m, s in METHOD_SPECS.items() if s.transfer)
+
+
+def _ratio_methods() -> Tuple[str, ...]:      # paper Table 4
+    return tuple(m for m, s in METHOD_SPECS.items() if s.sampling_ratio)
 EXPERIMENTS = ("single", "transfer", "ratios", "scratch")
 
 
@@ -163,11 +173,11 @@ def build_grid(d: dict) -> List[Node]:
     order = d["task_order"]
     steps = [b.stage_steps[t] for t in order[:-1]] + [b.adaptation_steps[order[-1]]]
     chains = []  # (experiment folder, method, adaptation ratio, task order, step budgets)
-    transfer_methods = [m for m in d["methods"] if m in TRANSFER_METHODS]
+    transfer_methods = [m for m in d["methods"] if m in _transfer_methods()]
     if "transfer" in d["experiments"]:
         chains += [("transfer", m, None, order, steps) for m in transfer_methods]
     if "ratios" in d["experiments"]:
-        chains += [("transfer", m, tuple(r), order, steps) for m in d["methods"] if m in RATIO_METHODS
+        chains += [("transfer", m, tuple(r), order, steps) for m in d["methods"] if m in _ratio_methods()
                    for r in d["ratios"]]
     if "scratch" in d["experiments"]:  # the control: the target task from scratch, adaptation budget and settings
         chains += [("scratch", m, None, order[-1:], steps[-1:]) for m in transfer_methods]
@@ -318,7 +328,7 @@ def definition_from_args(a: argparse.Namespace) -> dict:
         "preset": a.preset,
         "experiments": _pick(a.experiments, EXPERIMENTS, "experiment"),
         "tasks": _pick(a.tasks, protocol.TASKS, "task") if a.tasks else list(protocol.TASKS),
-        "methods": _pick(a.methods, METHODS, "method") if a.methods else list(METHODS),
+        "methods": _pick(a.methods, _methods(), "method") if a.methods else list(_methods()),
         "seeds": list(b.seeds),
         "chain_seeds": list(b.chain_seeds()),
         "ratios": [list(r) for r in ratios],
@@ -327,10 +337,11 @@ def definition_from_args(a: argparse.Namespace) -> dict:
         "budget": {**dataclasses.asdict(b), "seeds": list(b.seeds), "hidden": list(b.hidden),
                    "transfer_seeds": None if b.transfer_seeds is None else list(b.transfer_seeds)},
     }
-    if "ratios" in d["experiments"] and not set(d["methods"]) & set(RATIO_METHODS):
-        raise ConfigError(f"experiment 'ratios' needs method {' or '.join(RATIO_METHODS)} (it varies the R/E ratio)")
-    if "transfer" in d["experiments"] and not set(d["methods"]) & set(TRANSFER_METHODS):
-        raise ConfigError(f"experiment 'transfer' needs method {' or '.join(TRANSFER_METHODS)}")
+    if "ratios" in d["experiments"] and not set(d["methods"]) & set(_ratio_methods()):
+        raise ConfigError(f"experiment 'ratios' needs method {' or '.join(_ratio_methods())} (it varies the R/E ratio)")
+    for exp in ("transfer", "scratch"):
+        if exp in d["experiments"] and not set(d["methods"]) & set(_transfer_methods()):
+            raise ConfigError(f"experiment {exp!r} needs method {' or '.join(_transfer_methods())}")
     return d
 
 
@@ -369,10 +380,10 @@ def make_parser() -> argparse.ArgumentParser:
         description=(
             "Run the paper's experiments (Beyene & Han 2022) and build its tables and plots.\n\n"
             "experiments:\n"
-            f"  single    each task x methods {', '.join(METHODS)} (paper Fig. 4)\n"
-            f"  transfer  ReachTarget -> CloseBox -> CloseMicrowave for {', '.join(TRANSFER_METHODS)}; each stage\n"
+            f"  single    each task x methods {', '.join(_methods())} (paper Fig. 4)\n"
+            f"  transfer  ReachTarget -> CloseBox -> CloseMicrowave for {', '.join(_transfer_methods())}; each stage\n"
             "            starts from the previous stage's networks and replay; HER k=8 (paper Fig. 5, Table 5)\n"
-            f"  ratios    {', '.join(RATIO_METHODS)} transfer with R/E sampling ratios 0.5/0.5, 0.6/0.4, 0.7/0.3 in the\n"
+            f"  ratios    {', '.join(_ratio_methods())} transfer with R/E sampling ratios 0.5/0.5, 0.6/0.4, 0.7/0.3 in the\n"
             "            adaptation stage (paper Table 4); shares the source stages, and the 0.6/0.4 chain, with 'transfer'\n"
             "  scratch   the control: the chain's last task trained from scratch with the adaptation stage's budget\n"
             "            and settings, for each transfer method (does pretraining help?)\n\n"
@@ -392,8 +403,8 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--experiments", default=",".join(EXPERIMENTS),
                    help="comma list of single, transfer, ratios (default: all)")
     p.add_argument("--tasks", help=f"tasks of the single-task experiment (default: all: {','.join(protocol.TASKS)})")
-    p.add_argument("--methods", help=f"comma list of {', '.join(METHODS)} (default: all; transfer uses "
-                                      f"{' and '.join(TRANSFER_METHODS)} among them)")
+    p.add_argument("--methods", help=f"comma list of {', '.join(_methods())} (default: all; transfer uses "
+                                      f"{' and '.join(_transfer_methods())} among them)")
     p.add_argument("--seeds", help="a count (3 -> seeds 0,1,2) or a list (0,4,7; one seed: '7,') for every "
                                    "experiment; default: the preset's")
     p.add_argument("--transfer-seeds", help="seeds of the transfer, ratios and scratch experiments only "
@@ -414,8 +425,9 @@ def make_parser() -> argparse.ArgumentParser:
                                  "result lives in results/ and a default run never writes there)")
     p.add_argument("--workers", type=int, help="runs in parallel (default: min(2, CPU count); with --ray-address: "
                                                "the cluster's CPUs)")
-    p.add_argument("--backend", choices=("local", "ray"), default="local",
-                   help="local process pool, or Ray (same results either way)")
+    p.add_argument("--backend", choices=("local", "ray", "inline"), default="local",
+                   help="local process pool, Ray, or inline (one run at a time in this process: debugging, "
+                        "methods registered at run time); same results either way")
     p.add_argument("--ray-address", help="join this Ray cluster (e.g. auto, ray://host:10001); "
                                          "without it --backend ray starts a local Ray instance. "
                                          "The cluster must see --out on a shared filesystem")
@@ -480,6 +492,34 @@ class LocalBackend:
 
     def close(self, cancel: bool = False):
         self.pool.shutdown(wait=not cancel, cancel_futures=cancel)
+
+
+class InlineBackend:
+    """Runs each submitted node at once in this process (no pool): for debugging and run-time plugins."""
+
+    capacity = 1
+
+    class _Handle:  # hashable: run_grid keys its in-flight runs by handle
+        def __init__(self, value=None, error=None):
+            self.value, self.error = value, error
+
+    def submit(self, payload):
+        try:
+            return self._Handle(value=execute(payload))
+        except Exception as e:  # reported by run_grid like a worker's failure
+            return self._Handle(error=e)
+
+    def wait(self, handles):
+        return list(handles)[:1]
+
+    @staticmethod
+    def result(h):
+        if h.error is not None:
+            raise h.error
+        return h.value
+
+    def close(self, cancel: bool = False):
+        pass
 
 
 class RayBackend:
@@ -613,7 +653,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         from maniskill_dualher.cost import describe, grid_cost
         for line in describe(grid_cost(todo_cfgs), workers or 1):
             print(line, flush=True)
-    backend = LocalBackend(workers) if a.backend == "local" else RayBackend(workers, a.ray_address)
+    backend = {"local": lambda: LocalBackend(workers), "inline": InlineBackend,
+               "ray": lambda: RayBackend(workers, a.ray_address)}[a.backend]()
     cancel = True
     try:
         failed = run_grid(nodes, out, backend)
