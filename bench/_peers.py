@@ -63,7 +63,7 @@ class GoalDictEnv(gym.Env):
                  reward_mode: str = "sparse", terminate_on_success: bool = False):
         import maniskill_dualher  # noqa: F401  (registers the tasks)
         from mani_skill.utils.wrappers.gymnasium import CPUGymWrapper
-        from tasks.common import GOAL_DIM, OBS_DIM
+        from maniskill_dualher.tasks.common import GOAL_DIM, OBS_DIM
         kw = dict(sim_backend="physx_cpu", render_backend="none", obs_mode="state", reward_mode=reward_mode)
         if control_mode is not None:
             kw["control_mode"] = control_mode

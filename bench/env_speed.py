@@ -18,11 +18,11 @@ import gymnasium as gym
 import sapien
 import torch
 
-import tasks  # noqa: F401  (registers the tasks)
+import maniskill_dualher.tasks  # noqa: F401  (registers the tasks)
 from mani_skill.envs.sapien_env import BaseEnv
 from mani_skill.utils.registration import register_env
 from mani_skill.utils.scene_builder.table import TableSceneBuilder
-from tasks.common import registered_task_ids
+from maniskill_dualher.tasks.common import registered_task_ids
 
 BARE_ID = "BenchBarePanda-v0"
 TABLE_ID = "BenchPandaTable-v0"

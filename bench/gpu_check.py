@@ -7,7 +7,7 @@ goes on to the next section; the exit code is 1 if any section failed, 0 otherwi
 * ``env <task>`` for ReachTarget-v1, CloseBox-v1, CloseMicrowave-v1: ``gym.make(task, num_envs=256,
   sim_backend="physx_cuda", obs_mode="state", reward_mode="sparse", render_backend="none")``, reset, 100
   uniformly random steps timed (env steps/s = num_envs x steps / seconds, CUDA synchronised).
-* ``solver <task>``: the scripted solver (``tasks.solvers.make_solver(env)``; ``solver.act(obs)`` returns
+* ``solver <task>``: the scripted solver (``maniskill_dualher.tasks.solvers.make_solver(env)``; ``solver.act(obs)`` returns
   env-scaled actions), batched over all envs, for one episode (the task's ``max_episode_steps``); reports
   the fraction of envs that succeeded at some step (target >= 0.9: below it the section fails).
   In both env sections ``info["success"]`` must equal ``env.unwrapped.compute_reward(info["achieved_goal"],
@@ -157,7 +157,7 @@ def section_env(task: str, num_envs: int, steps: int, d: dict, envs: dict) -> No
 def section_solver(task: str, d: dict, envs: dict) -> None:
     import gymnasium as gym
     import torch
-    from tasks.solvers import make_solver
+    from maniskill_dualher.tasks.solvers import make_solver
     env = envs.get(task)
     if env is None:
         raise CheckFailed(f"no env (its 'env {task}' section failed)")

@@ -2,11 +2,20 @@
 
 Importing this package registers the ManiSkill tasks ReachTarget-v1, CloseBox-v1 and CloseMicrowave-v1.
 """
+import os
 import warnings
 
 # SAPIEN warns on import when the system has no usable libvulkan (CPU-only machines); it then works fine.
 warnings.filterwarnings("ignore", message="Failed to find system libvulkan")
 
-import tasks as _tasks  # noqa: F401  (registers the environments)
+# The repository keeps tasks/ and baselines/ beside this package (the project's layout); installed, they
+# live inside it (pyproject's package-dir). Either way they import as maniskill_dualher.tasks and
+# maniskill_dualher.baselines, never as top-level `tasks` / `baselines` (names other projects use).
+_root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+if os.path.isfile(os.path.join(_root, "tasks", "__init__.py")):
+    __path__.append(_root)  # type: ignore[name-defined]  # a source checkout
+del _root
+
+from . import tasks as _tasks  # noqa: F401,E402  (registers the environments)
 
 __version__ = "0.1.0"

@@ -94,7 +94,7 @@ class BatchEnv:
         self._dict_goal = isinstance(self.env.observation_space, gym.spaces.Dict) and {
             "observation", "achieved_goal", "desired_goal"} <= set(self.env.observation_space.spaces)
         if self.is_maniskill and hasattr(self.unwrapped, "goal_tolerance"):
-            from tasks.common import GOAL_DIM, OBS_DIM
+            from maniskill_dualher.tasks.common import GOAL_DIM, OBS_DIM
             obs_dim, goal_dim = OBS_DIM, GOAL_DIM
         elif self._dict_goal:
             sp = self.env.observation_space.spaces
@@ -201,7 +201,7 @@ class BatchEnv:
     def solver(self):
         """The task's scripted solver (for demonstrations), or None if the task has none."""
         try:
-            from tasks.solvers import make_solver
+            from maniskill_dualher.tasks.solvers import make_solver
         except ImportError:
             return None
         try:
@@ -220,7 +220,7 @@ def _is_maniskill(env_id: str) -> bool:
 
 def _known_task_ids():
     try:
-        import tasks  # noqa: F401
+        import maniskill_dualher.tasks  # noqa: F401
     except ImportError:
         pass
     return sorted(k for k in gym.registry if k in ("ReachTarget-v1", "CloseBox-v1", "CloseMicrowave-v1"))

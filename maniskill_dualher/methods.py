@@ -36,8 +36,8 @@ class MethodSpec:
 
 
 METHOD_SPECS: Dict[str, MethodSpec] = {s.name: s for s in (
-    MethodSpec("sac", "baselines.sac:SACReplay", "SAC (uniform replay)", "tab:gray", transfer=False),
-    MethodSpec("sac_her_per", "baselines.sac_her_per:SACHerPerReplay", "SAC+HER+PER", "tab:blue"),
+    MethodSpec("sac", "maniskill_dualher.baselines.sac:SACReplay", "SAC (uniform replay)", "tab:gray", transfer=False),
+    MethodSpec("sac_her_per", "maniskill_dualher.baselines.sac_her_per:SACHerPerReplay", "SAC+HER+PER", "tab:blue"),
     MethodSpec("dual_buffer", "maniskill_dualher.dual_buffer:DualBufferReplay", "dual buffer", "tab:orange",
                sampling_ratio=True),
 )}

@@ -216,7 +216,7 @@ def hyperparameter_rows(runs: List[Run]) -> List[dict]:
 def task_rows() -> Tuple[Optional[List[dict]], str]:
     """tasks.table.task_rows() if the tasks package has it; else (None, why)."""
     try:
-        from tasks.table import task_rows as fn
+        from maniskill_dualher.tasks.table import task_rows as fn
     except ImportError as e:
         return None, f"tasks.csv skipped: tasks.table.task_rows is not available ({e})"
     try:
@@ -417,7 +417,7 @@ def summary_md(folder: Path, runs: List[Run], unfinished: List[str], tables: Dic
         s += [f"## {title} (`{name}`)", "", md_table(tables[name], cols)]
     s += ["## Hyperparameters: paper Table 3 vs ours (`hyperparameters.csv`)", "",
           md_table(hyper, ["hyperparameter", "paper", "ours_single_task", "ours_transfer"])]
-    s += ["## Tasks (`tasks.csv`)", "", tasks_note or "See tasks.csv.", ""]
+    s += ["## Tasks (`maniskill_dualher.tasks.csv`)", "", tasks_note or "See tasks.csv.", ""]
     s += ["## Figures", ""] + [f"![{f}]({f})" for f in figures] + [""]
     if unfinished:
         s += ["## Unfinished runs (not counted)", ""] + [f"- {u}" for u in unfinished] + [""]

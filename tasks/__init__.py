@@ -7,6 +7,6 @@ import warnings
 # SAPIEN warns on import when the system has no usable libvulkan (CPU-only machines); it then works fine.
 warnings.filterwarnings("ignore", message="Failed to find system libvulkan")
 
-from tasks import reach_target  # noqa: F401  (ReachTarget-v1)
-from tasks import close_box  # noqa: F401  (CloseBox-v1)
-from tasks import close_microwave  # noqa: F401  (CloseMicrowave-v1)
+from . import reach_target  # noqa: F401  (ReachTarget-v1)
+from . import close_box  # noqa: F401  (CloseBox-v1)
+from . import close_microwave  # noqa: F401  (CloseMicrowave-v1)

@@ -6,8 +6,8 @@ import sapien
 
 from mani_skill.utils.registration import register_env
 
-from tasks.common import DEFAULT_MAX_EPISODE_STEPS
-from tasks.hinged import HingedGeometry, HingedPanelEnv, chord_tolerance
+from .common import DEFAULT_MAX_EPISODE_STEPS
+from .hinged import HingedGeometry, HingedPanelEnv, chord_tolerance
 
 # x-axis -> -y: a joint frame with this rotation turns about the world -y axis (joint axis = frame
 # x-axis), so a positive hinge angle lifts the lid's free (+x) edge up.
@@ -51,7 +51,7 @@ class CloseBoxEnv(HingedPanelEnv):
       the same point with the lid closed. The chord between the two positions of the point is
       2 L sin(angle / 2), so "distance < tolerance" is exactly "angle < 0.1".
 
-    **Observation slots** (see ``tasks.common``): task object pose = the lid link's pose, task joint =
+    **Observation slots** (see ``maniskill_dualher.tasks.common``): task object pose = the lid link's pose, task joint =
     hinge angle and angular velocity, no distractors.
 
     **Dense reward:** the common goal term ``1 - tanh(5 * goal_distance)`` plus a reaching term

@@ -6,8 +6,8 @@ import sapien
 
 from mani_skill.utils.registration import register_env
 
-from tasks.common import DEFAULT_MAX_EPISODE_STEPS
-from tasks.hinged import HingedGeometry, HingedPanelEnv, chord_tolerance
+from .common import DEFAULT_MAX_EPISODE_STEPS
+from .hinged import HingedGeometry, HingedPanelEnv, chord_tolerance
 
 # x-axis -> +z: a joint frame with this rotation turns about the vertical (joint axis = frame x-axis).
 _Q_X_TO_Z = [float(np.sqrt(0.5)), 0.0, -float(np.sqrt(0.5)), 0.0]
@@ -50,7 +50,7 @@ class CloseMicrowaveEnv(HingedPanelEnv):
       the desired goal, the same point with the door closed. The chord between the two positions of
       the point is 2 L sin(angle / 2), so "distance < tolerance" is exactly "angle < 0.1".
 
-    **Observation slots** (see ``tasks.common``): task object pose = the door link's pose (origin on the
+    **Observation slots** (see ``maniskill_dualher.tasks.common``): task object pose = the door link's pose (origin on the
     hinge axis; the body pose follows from it and the angle), task joint = hinge angle and angular
     velocity, no distractors.
 

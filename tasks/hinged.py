@@ -22,7 +22,7 @@ import torch
 
 from mani_skill.utils.structs import Pose
 
-from tasks.common import PandaGoalEnv, transform_points
+from .common import PandaGoalEnv, transform_points
 
 Part = Tuple[Sequence[float], Sequence[float]]  # (centre, half size), metres, in the link's frame
 

@@ -6,7 +6,7 @@ import torch
 from mani_skill.utils.registration import register_env
 from mani_skill.utils.structs import Pose
 
-from tasks.common import DEFAULT_MAX_EPISODE_STEPS, PandaGoalEnv, build_primitive
+from .common import DEFAULT_MAX_EPISODE_STEPS, PandaGoalEnv, build_primitive
 
 
 @register_env("ReachTarget-v1", max_episode_steps=DEFAULT_MAX_EPISODE_STEPS)
@@ -26,7 +26,7 @@ class ReachTargetEnv(PandaGoalEnv):
       touches it (~2% of episodes; rejection sampling, batched);
     - the robot's rest joint angles get Gaussian noise (``robot_init_qpos_noise``, default 0.02 rad).
 
-    **Observation slots** (``tasks.common.OBS_SLOTS``): robot qpos/qvel, TCP pose, the two distractor
+    **Observation slots** (``maniskill_dualher.tasks.common.OBS_SLOTS``): robot qpos/qvel, TCP pose, the two distractor
     positions. ``object_pose`` and the joint slots are zeros: the red ball's position *is* the desired goal
     and lives only in ``desired_goal``, so a hindsight-relabeled goal never contradicts the observation.
 

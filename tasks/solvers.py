@@ -22,7 +22,7 @@ import torch
 
 from mani_skill.utils.geometry import rotation_conversions as rc
 
-from tasks.common import FLAT_OBS_DIM, OBS_SLICES, split_goal_obs
+from .common import FLAT_OBS_DIM, OBS_SLICES, split_goal_obs
 
 SOLVERS: dict = {}  # env class -> solver class
 DOWN_QUAT = (0.0, 1.0, 0.0, 0.0)  # TCP orientation (wxyz) at the Panda rest pose: fingers pointing down
@@ -165,7 +165,7 @@ class TcpWaypointSolver:
 
 
 # ---------------------------------------------------------------------- task solvers
-from tasks.reach_target import ReachTargetEnv  # noqa: E402
+from .reach_target import ReachTargetEnv  # noqa: E402
 
 
 @register_solver(ReachTargetEnv)
@@ -176,7 +176,7 @@ class ReachTargetSolver(TcpWaypointSolver):
         return split_goal_obs(obs)[2]
 
 
-from tasks.close_box import CloseBoxEnv  # noqa: E402
+from .close_box import CloseBoxEnv  # noqa: E402
 
 
 @register_solver(CloseBoxEnv)
@@ -218,7 +218,7 @@ class CloseBoxSolver(TcpWaypointSolver):
         return lid_p + rc.quaternion_apply(lid_q, local)
 
 
-from tasks.close_microwave import CloseMicrowaveEnv  # noqa: E402
+from .close_microwave import CloseMicrowaveEnv  # noqa: E402
 
 
 @register_solver(CloseMicrowaveEnv)

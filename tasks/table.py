@@ -2,7 +2,7 @@
 
 Read off the live environments (gym.make with default arguments), so the table cannot drift from code:
 
-    python -m tasks.table --out results/tasks.csv
+    python -m maniskill_dualher.tasks.table --out results/tasks.csv
 """
 from __future__ import annotations
 
@@ -10,8 +10,7 @@ import argparse
 
 import gymnasium as gym
 
-import tasks  # noqa: F401  (registers the environments)
-from tasks.common import GOAL_DIM, OBS_DIM, episode_length, registered_task_ids, split_goal_obs
+from .common import GOAL_DIM, OBS_DIM, episode_length, registered_task_ids, split_goal_obs
 
 COLUMNS = ("task", "observation_width", "goal_width", "action_width", "episode_length",
            "success_tolerance_m", "control_mode")

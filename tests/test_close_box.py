@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 import maniskill_dualher  # noqa: F401  (registers the tasks)
-from tasks.close_box import CloseBoxEnv
-from tasks.solvers import make_solver
+from maniskill_dualher.tasks.close_box import CloseBoxEnv
+from maniskill_dualher.tasks.solvers import make_solver
 
 from articulated import env_fixture, goals_at_angle, set_state
 

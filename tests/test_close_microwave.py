@@ -8,8 +8,8 @@ import torch
 
 import maniskill_dualher  # noqa: F401  (registers the tasks)
 from mani_skill.utils.geometry import rotation_conversions as rc
-from tasks.close_microwave import CloseMicrowaveEnv
-from tasks.solvers import make_solver
+from maniskill_dualher.tasks.close_microwave import CloseMicrowaveEnv
+from maniskill_dualher.tasks.solvers import make_solver
 
 from articulated import env_fixture, goals_at_angle, robot_contact_force, set_state
 

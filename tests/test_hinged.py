@@ -1,4 +1,4 @@
-"""What every hinge-closing task (CloseBox, CloseMicrowave) gets from tasks.hinged.HingedPanelEnv and must show:
+"""What every hinge-closing task (CloseBox, CloseMicrowave) gets from maniskill_dualher.tasks.hinged.HingedPanelEnv and must show:
 the per-episode desired-goal cache, one panel-pose read per step shared by goal, observation and reward, a
 hinge that holds still unless pushed, a scripted push that closes it by contact, documented randomization,
 and success exactly when the free edge's chord is within tolerance. Task-specific checks live in
@@ -8,11 +8,11 @@ import pytest
 import torch
 
 import maniskill_dualher  # noqa: F401  (registers the tasks)
-from tasks.common import OBS_SLICES, split_goal_obs, transform_points
-from tasks.close_box import CloseBoxEnv
-from tasks.close_microwave import CloseMicrowaveEnv
-from tasks.hinged import HingedPanelEnv
-from tasks.solvers import make_solver
+from maniskill_dualher.tasks.common import OBS_SLICES, split_goal_obs, transform_points
+from maniskill_dualher.tasks.close_box import CloseBoxEnv
+from maniskill_dualher.tasks.close_microwave import CloseMicrowaveEnv
+from maniskill_dualher.tasks.hinged import HingedPanelEnv
+from maniskill_dualher.tasks.solvers import make_solver
 
 from articulated import goals_at_angle, make_env, robot_contact_force, set_state
 

@@ -10,7 +10,7 @@ import pytest
 import torch
 
 import maniskill_dualher  # noqa: F401  (registers the tasks)
-from tasks.common import (
+from maniskill_dualher.tasks.common import (
     DEFAULT_CONTROL_MODE,
     DEFAULT_MAX_EPISODE_STEPS,
     DENSE_REWARD_MAX,
@@ -23,7 +23,7 @@ from tasks.common import (
     registered_task_ids,
     split_goal_obs,
 )
-from tasks.solvers import make_solver
+from maniskill_dualher.tasks.solvers import make_solver
 
 TASK_IDS = registered_task_ids()
 PAPER_TASKS = {"ReachTarget-v1", "CloseBox-v1", "CloseMicrowave-v1"}
@@ -311,7 +311,7 @@ def test_bad_input_one_line_error(task, kwargs, named):
 @pytest.mark.parametrize("task", TASK_IDS)
 @pytest.mark.parametrize("kwargs", [dict(obs_mode="rgb"), dict(obs_mode="rgbd"), dict(render_mode="rgb_array")])
 def test_no_render_device_error(task, kwargs):
-    from tasks.common import render_device_available
+    from maniskill_dualher.tasks.common import render_device_available
 
     if render_device_available():
         pytest.skip("this machine has a render device")
