@@ -49,33 +49,30 @@ class ConfigError(ValueError):
 
 @dataclass
 class SACConfig:
-    # "paper": twin Q + state-value V with Polyak target V̄, fixed temperature (the paper's Fig. 1).
-    # "modern": twin Q with Polyak target critics, no V, learned temperature (SAC v2, as in SB3/CleanRL).
+    # SAC variant: "paper" = twin Q + state value V with a Polyak target V-bar and a fixed temperature
+    # (the paper's Fig. 1); "modern" = twin Q with target critics, no V, learned temperature (SAC v2, SB3/CleanRL)
     variant: str = "paper"
-    lr: float = 1e-4                      # Table 3
-    gamma: float = 0.99                   # Table 3
-    alpha: float = 0.005                  # Table 3: fixed temperature (initial value when learned)
-    learn_alpha: Optional[bool] = None    # None: False for "paper", True for "modern"
-    target_entropy: Optional[float] = None  # None: -action_dim
-    hidden: Tuple[int, ...] = (256, 256)  # not in the paper
-    tau: float = 0.005                    # Polyak rate of the target network(s); not in the paper
-    batch_size: int = 256                 # Table 3
-    # When gradient updates happen. "step": ``updates_per_step`` per env step (UTD, summed over parallel envs;
-    # SB3/CleanRL). "episode": ``updates_per_episode`` each time an episode ends (the paper's Algorithm 1:
-    # "perform one step network update" once per episode loop).
+    lr: float = 1e-4                      # Adam learning rate of every network (> 0; paper Table 3: 1e-4)
+    gamma: float = 0.99                   # discount factor in (0, 1] (paper Table 3: 0.99)
+    alpha: float = 0.005                  # entropy temperature, fixed, or the initial value when learned (Table 3)
+    learn_alpha: Optional[bool] = None    # learn the temperature (default: False for "paper", True for "modern")
+    target_entropy: Optional[float] = None  # entropy target of the learned temperature (default: -action width)
+    hidden: Tuple[int, ...] = (256, 256)  # hidden layer widths of every network, e.g. 64,64 (not in the paper)
+    tau: float = 0.005                    # Polyak rate of the target networks in (0, 1] (not in the paper)
+    batch_size: int = 256                 # mini-batch size, transitions per update (paper Table 3: 256)
+    # when gradient updates happen: "step" = updates_per_step per env step (UTD; SB3, CleanRL); "episode" =
+    # updates_per_episode each time an episode ends (the paper's Algorithm 1: one update per episode loop)
     update_schedule: str = "step"
-    updates_per_step: float = 1.0         # gradient updates per environment step (schedule "step")
+    updates_per_step: float = 1.0         # gradient updates per env step, summed over parallel envs (schedule "step")
     updates_per_episode: float = 1.0      # gradient updates per finished episode (schedule "episode"; Alg. 1: 1)
-    log_every: int = 100                  # write losses/alpha/entropy/Q to TensorBoard every this many updates
-    random_steps: int = 5_000             # uniform random actions first; the paper used 100k
-    learning_starts: int = 1_000          # no updates before this many env steps; not in the paper
-    # Options against PER's known harm to actor-critic (LAP/PAL, LA3P); off by default.
-    is_weights_critic_only: bool = False  # importance weights on the critic loss only (never the actor's)
-    actor_uniform_batch: bool = False     # train the actor on a separate uniform batch
-    # torch.set_float32_matmul_precision during updates and acting. "medium" lets oneDNN (CPU) / cuBLAS
-    # (GPU) use bf16/TF32 kernels for fp32 matmuls; on this project's CPUs (AVX512-BF16) an update got
-    # 1.7x faster and stayed at fp32 rounding level (bench/train_speed.py --precision, tests/test_sac.py).
-    # "highest": strict fp32.
+    log_every: int = 100                  # write losses, alpha, entropy and Q to TensorBoard every this many updates
+    random_steps: int = 5_000             # env steps of uniform random actions before the policy acts (paper: 100k)
+    learning_starts: int = 1_000          # env steps before the first gradient update (not in the paper)
+    # importance weights on the critic loss only, never the actor's (against PER's harm to actor-critic, LA3P)
+    is_weights_critic_only: bool = False
+    actor_uniform_batch: bool = False     # train the actor on its own uniform batch (LAP/PAL-style option)
+    # torch float32 matmul precision during updates and acting: "medium" lets oneDNN/cuBLAS use bf16/TF32
+    # kernels (fp32-level results, tests/test_sac.py; 1.7x faster on AVX512-BF16 CPUs); "high"; "highest" = strict fp32
     matmul_precision: str = "medium"
 
     def resolved_learn_alpha(self) -> bool:
@@ -84,45 +81,41 @@ class SACConfig:
 
 @dataclass
 class ReplayConfig:
-    capacity: int = 10_000_000            # Table 3 (arrays are allocated lazily; memory grows as it fills)
-    priority_exponent: float = 0.5        # the paper's "β" (Table 3) = PER libraries' alpha
-    is_weights: bool = False              # importance-sampling weights; the paper does not use them
-    is_exponent: float = 0.4              # PER libraries' beta, annealed linearly to 1 over the run
-    priority_eps: float = 1e-6            # added to |TD| so no transition has zero priority (Eq. 9)
-    her_strategy: str = "future"          # "future" | "final" | "episode"
-    her_k: int = 4                        # relabeled goals per transition: 4 single-task, 8 multi-task (paper)
-    ratio: Tuple[float, float] = (0.6, 0.4)  # dual buffer: P(batch from R), P(batch from E); paper's best
-    dual_mode: str = "choose"             # "choose": whole batch from R or E; "split": every batch split r:e
+    capacity: int = 10_000_000            # transitions per buffer, FIFO (paper Table 3: 1e7; memory grows as it fills)
+    priority_exponent: float = 0.5        # PER priority exponent: the paper's "beta" (Table 3: 0.5), PER libraries' alpha
+    is_weights: bool = False              # importance-sampling weights on prioritized batches (the paper uses none)
+    is_exponent: float = 0.4              # PER libraries' beta: importance-sampling exponent, annealed to 1 over the run
+    priority_eps: float = 1e-6            # added to |TD| so no transition has zero priority (paper Eq. 9)
+    her_strategy: str = "future"          # hindsight goal selection: future, final or episode
+    her_k: int = 4                        # hindsight goals per real transition (paper: 4 single-task, 8 multi-task)
+    ratio: Tuple[float, float] = (0.6, 0.4)  # dual buffer: P(batch from R)/P(batch from E), sums to 1 (paper's best)
+    dual_mode: str = "choose"             # dual buffer: "choose" = whole batch from R or E (Alg. 1); "split" = r:e rows
     solver_demos: int = 0                 # seed E with this many successful scripted-solver episodes (not in the paper)
-    # What enters the dual buffer's success buffer E. "transitions" (default, Algorithm 1: "if r_t = 1 then
-    # store in E"): real transitions with reward 1; with episodes that end on success that is one row per
-    # successful episode. "episodes" (section 4.2: E "only contains successful trajectories"): every real
-    # transition of an episode that succeeded.
+    # dual buffer: what enters E. "transitions" (Algorithm 1: "if r_t = 1 then store in E"): real reward-1
+    # transitions, one per successful episode when success ends it; "episodes" (section 4.2: E "only contains
+    # successful trajectories"): every real transition of a successful episode
     success_buffer: str = "transitions"
 
 
 @dataclass
 class RunConfig:
-    env_id: str = "ReachTarget-v1"
-    method: str = "dual_buffer"
-    seed: int = 0
-    total_steps: int = 30_000             # environment steps (summed over parallel envs)
-    max_episode_steps: Optional[int] = None  # None: the task's default (150, Table 3)
-    # Paper 4.1: "An episode terminated either when the maximum timestep was reached or the task was
-    # completed." True: success ends the episode and its last transition is terminal (no bootstrap; HER's
-    # relabeled transitions are terminal where their relabeled goal is reached). False: fixed-length
-    # episodes, success is not terminal (the Fetch/HER convention). Plain gymnasium envs always end on their
-    # own ``terminated``.
+    env_id: str = "ReachTarget-v1"        # a task (ReachTarget-v1, CloseBox-v1, CloseMicrowave-v1) or any gymnasium id
+    method: str = "dual_buffer"           # replay method, a name in the registry (maniskill_dualher/methods.py)
+    seed: int = 0                         # run seed (>= 0): networks, exploration, replay sampling, episode resets
+    total_steps: int = 30_000             # training budget in env steps, summed over parallel envs
+    max_episode_steps: Optional[int] = None  # time limit of an episode in env steps (default: the task's, 150 = Table 3)
+    # end an episode on success, its last transition terminal (paper 4.1: "an episode terminated either when
+    # the maximum timestep was reached or the task was completed"); off: fixed-length episodes (Fetch/HER)
     terminate_on_success: bool = True
-    control_mode: Optional[str] = None    # None: the task's default (pd_joint_delta_pos)
-    sim_backend: str = "physx_cpu"
-    reward_mode: str = "sparse"           # ManiSkill reward mode; the paper's setting is sparse (+1 on success)
-    num_envs: int = 1
+    control_mode: Optional[str] = None    # Panda controller (default: the task's, pd_joint_delta_pos)
+    sim_backend: str = "physx_cpu"        # physx_cpu (one env per process) or physx_cuda (GPU, num_envs > 1)
+    reward_mode: str = "sparse"           # ManiSkill reward mode; HER methods need sparse (the paper's +1 on success)
+    num_envs: int = 1                     # parallel envs (CPU simulation: 1)
     eval_every: int = 5_000               # env steps between evaluations
-    eval_episodes: int = 10               # fixed evaluation seeds, deterministic policy
-    checkpoint_every: int = 5_000         # env steps between checkpoints (always at the end too)
-    torch_threads: int = 1
-    device: str = "cpu"
+    eval_episodes: int = 10               # evaluation episodes, fixed seeds shared by every run, deterministic policy
+    checkpoint_every: int = 5_000         # env steps between checkpoints (also at the end; resume granularity)
+    torch_threads: int = 1                # torch intra-op threads of this run
+    device: str = "cpu"                   # torch device of networks and batches (cpu, cuda, cuda:0)
     sac: SACConfig = field(default_factory=SACConfig)
     replay: ReplayConfig = field(default_factory=ReplayConfig)
 
@@ -199,6 +192,35 @@ class RunConfig:
         if self.sim_backend == "physx_cuda":
             check_device("cuda", what="sim_backend='physx_cuda'")
         return self
+
+
+def field_docs(cls) -> dict:
+    """Field name -> its one-line doc: the comment on the field's line and the comment block just above it.
+
+    The comments in this file are the fields' documentation; ``--help`` is generated from them, so the
+    two cannot drift (the same idea as tyro's field docstrings)."""
+    import inspect
+    import io
+    import tokenize
+
+    src = inspect.getsource(cls)
+    comments = {}
+    for tok in tokenize.generate_tokens(io.StringIO(src).readline):
+        if tok.type == tokenize.COMMENT:
+            comments[tok.start[0]] = tok.string.lstrip("#").strip()
+    lines = src.splitlines()
+    out = {}
+    for f in dataclasses.fields(cls):
+        i = next((n for n, ln in enumerate(lines, 1) if ln.strip().startswith(f"{f.name}:")), None)
+        if i is None:
+            continue
+        above, j = [], i - 1
+        while j in comments and lines[j - 1].strip().startswith("#"):
+            above.insert(0, comments[j])
+            j -= 1
+        parts = above + ([comments[i]] if i in comments else [])
+        out[f.name] = " ".join(parts)
+    return out
 
 
 def format_ratio(ratio) -> str:

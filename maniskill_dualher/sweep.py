@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Dict, List, Optional, Sequence, Tuple
 
 from maniskill_dualher import protocol, rundir
-from maniskill_dualher.config import ConfigError, ReplayConfig, RunConfig, SACConfig, parse_ratio
+from maniskill_dualher.config import ConfigError, ReplayConfig, RunConfig, SACConfig, field_docs, parse_ratio
 from maniskill_dualher.methods import METHOD_SPECS, method_spec
 from maniskill_dualher.paper import PAPER_RATIOS
 from maniskill_dualher.rundir import RUNS_DIR, SWEEP
@@ -368,6 +368,16 @@ def check_out_folder(out: Path, d: dict, force: bool) -> None:
                           f"use another --out, or --force")
 
 
+def budget_docs() -> Dict[str, str]:
+    """Each Budget key's doc: the doc of the config field it sets, else its own comment."""
+    cfg_docs = {**field_docs(RunConfig), **field_docs(ReplayConfig), **field_docs(SACConfig)}
+    out = {}
+    for k, v in field_docs(Budget).items():
+        same = cfg_docs.get({"sac_variant": "variant"}.get(k, k), "")
+        out[k] = same or v
+    return out
+
+
 def make_parser() -> argparse.ArgumentParser:
     budgets = "\n".join(
         f"  {name:6s} seeds {list(b.seeds)}; steps single {sorted(set(b.single_steps.values()))}, "
@@ -393,6 +403,9 @@ def make_parser() -> argparse.ArgumentParser:
             "unless --force, which makes the new definition current (old run folders stay, the report ignores them).\n"
             "When the grid is done, the report writes the tables (CSV), plots (PNG) and summary.md into <out>."),
         epilog=("presets (budgets live in PRESETS in maniskill_dualher/sweep.py):\n" + budgets + "\n\n"
+                "budget keys (--budget KEY=VALUE; dict keys per task, e.g. single_steps.CloseBox-v1=5000):\n"
+                + "\n".join(f"  {k:22s} {v}" for k, v in budget_docs().items()
+                            if k not in ("seeds", "transfer_seeds")) + "\n\n"
                 "examples:\n"
                 "  python -m maniskill_dualher.sweep --preset smoke --out /tmp/smoke\n"
                 "  python -m maniskill_dualher.sweep --experiments single --tasks CloseBox-v1 --seeds 5\n"
@@ -401,7 +414,7 @@ def make_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--preset", choices=sorted(PRESETS), default="quick", help="budget preset (default: quick)")
     p.add_argument("--experiments", default=",".join(EXPERIMENTS),
-                   help="comma list of single, transfer, ratios (default: all)")
+                   help=f"comma list of {', '.join(EXPERIMENTS)} (default: all)")
     p.add_argument("--tasks", help=f"tasks of the single-task experiment (default: all: {','.join(protocol.TASKS)})")
     p.add_argument("--methods", help=f"comma list of {', '.join(_methods())} (default: all; transfer uses "
                                       f"{' and '.join(_transfer_methods())} among them)")

@@ -27,7 +27,7 @@ from typing import Dict, List, Optional
 import numpy as np
 import torch
 
-from .config import ConfigError, ReplayConfig, RunConfig, SACConfig, parse_ratio
+from .config import ConfigError, ReplayConfig, RunConfig, SACConfig, field_docs, parse_ratio
 from . import rundir
 from .fileio import atomic_torch_save, atomic_write_text
 from .rundir import CHECKPOINT
@@ -464,14 +464,16 @@ def _field_flags(parser: argparse.ArgumentParser) -> None:
     """Every config field becomes a flag (--lr, --her-k, --ratio 0.6/0.4, --hidden 256,256, ...)."""
     groups = [("run", RunConfig)] + list(_SECTIONS.items())
     for section, cls in groups:
-        g = parser.add_argument_group(f"{section} options")
+        g = parser.add_argument_group(f"{section} options ({cls.__name__} in maniskill_dualher/config.py)")
+        docs = field_docs(cls)
         for f in dataclasses.fields(cls):
             if f.name in _SECTIONS:
                 continue
             name = _ALIASES.get(f.name, f.name).replace("_", "-")
             dest = f"{section}.{f.name}"
             default = f.default if f.default is not dataclasses.MISSING else f.default_factory()  # type: ignore
-            help_ = f"default: {default}"
+            shown = ",".join(map(str, default)) if isinstance(default, tuple) else default
+            help_ = f"{docs.get(f.name, '')} [default: {shown}]".replace("%", "%%")
             if isinstance(default, bool) or f.name in ("learn_alpha",):
                 g.add_argument(f"--{name}", dest=dest, action=argparse.BooleanOptionalAction, default=None, help=help_)
             else:
