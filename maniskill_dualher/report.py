@@ -13,7 +13,6 @@ one is a single-task run (paper Fig. 4).
 """
 from __future__ import annotations
 
-import argparse
 import math
 import sys
 from collections import defaultdict
@@ -25,6 +24,7 @@ import numpy as np
 
 from maniskill_dualher import protocol, rundir
 from maniskill_dualher.config import ConfigError, RunConfig, format_ratio
+from maniskill_dualher.cli import OneLineParser
 from maniskill_dualher.methods import METHOD_SPECS
 from maniskill_dualher.paper import (PAPER_ADAPT_BUDGET, PAPER_ADAPT_STEPS, PAPER_RATIO, PAPER_TABLE3, PAPER_TABLE4,
                                      PAPER_TABLE5, PAPER_TARGET, SCRATCH, paper_claims)
@@ -459,7 +459,7 @@ def build_report(folder, resamples: int = 10_000) -> List[Path]:
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m maniskill_dualher.report",
+    p = OneLineParser(prog="python -m maniskill_dualher.report",
                                 description="Rebuild tables (CSV), plots (PNG) and summary.md of a sweep folder "
                                             "from its run folders alone; no training.")
     p.add_argument("folder", help="a sweep's --out folder (e.g. results/quick)")

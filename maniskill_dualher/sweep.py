@@ -23,6 +23,7 @@ from typing import Dict, List, Optional, Sequence, Tuple
 
 from maniskill_dualher import protocol, rundir
 from maniskill_dualher.config import ConfigError, ReplayConfig, RunConfig, SACConfig, field_docs, parse_ratio
+from maniskill_dualher.cli import OneLineParser
 from maniskill_dualher.methods import METHOD_SPECS, method_spec
 from maniskill_dualher.paper import PAPER_RATIOS
 from maniskill_dualher.rundir import RUNS_DIR, SWEEP
@@ -205,13 +206,6 @@ def build_grid(d: dict) -> List[Node]:
 
 
 # --------------------------------------------------------------------------- CLI parsing
-class _Parser(argparse.ArgumentParser):
-    """argparse that answers bad input with one line on stderr and exit code 2."""
-
-    def error(self, message):  # noqa: D401
-        self.exit(2, f"error: {message} (see --help)\n")
-
-
 def _split(text: str) -> List[str]:
     return [t.strip() for t in text.split(",") if t.strip()]
 
@@ -384,7 +378,7 @@ def make_parser() -> argparse.ArgumentParser:
         f"source stage {sorted(set(b.stage_steps.values()))}, adaptation {sorted(set(b.adaptation_steps.values()))}; "
         f"eval every {b.eval_every} x {b.eval_episodes} episodes; hidden {list(b.hidden)}"
         for name, b in PRESETS.items())
-    p = _Parser(
+    p = OneLineParser(
         prog="python -m maniskill_dualher.sweep",
         formatter_class=argparse.RawDescriptionHelpFormatter,
         description=(

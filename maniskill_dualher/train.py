@@ -33,6 +33,7 @@ from .fileio import atomic_torch_save, atomic_write_text
 from .rundir import CHECKPOINT
 from .envs import EVAL_SEED_BASE, BatchEnv, make_env, train_episode_seed
 from .replay.base import Episode
+from .cli import OneLineParser
 from .sac import SAC
 
 DEMO_SEED_BASE = 2_000_000_000
@@ -495,6 +496,8 @@ def _coerce(name: str, raw: str, default):
         if default is None and name in ("target_entropy",):
             return float(raw)
         return raw
+    except ConfigError:
+        raise
     except ValueError:
         raise ConfigError(f"--{name.replace('_', '-')}: bad value {raw!r}") from None
 
@@ -523,7 +526,7 @@ def config_from_args(args: argparse.Namespace) -> RunConfig:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = OneLineParser(
         prog="python -m maniskill_dualher.train",
         description="Train one SAC run (sac | sac_her_per | dual_buffer) on a ManiSkill task or any gymnasium "
                     "env with a Box action space. Running again on the same --out resumes.")

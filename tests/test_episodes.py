@@ -134,3 +134,27 @@ def test_n_env_loop_learns_the_point_task(tmp_path):
     t.env.close()
     assert t.rows[0]["eval_success_rate"] <= final["eval_success_rate"]
     assert final["eval_success_rate"] >= 0.8
+
+
+def test_a_nan_loss_stops_the_run_keeping_the_last_good_checkpoint(tmp_path):
+    from maniskill_dualher.train import TrainingDiverged
+    import torch
+    cfg = point_cfg(n=1, steps=400, log_every=1, learning_starts=20)
+    cfg.checkpoint_every = 100
+    t = Trainer(cfg, tmp_path / "run", show_progress=False)
+    update = t.agent.update
+
+    def poisoned(batch, actor_batch=None, want_logs=False):
+        td, logs = update(batch, actor_batch, want_logs)
+        if t.env_steps > 250:
+            logs = {**logs, "losses/qf_loss": float("nan")}
+        return td, logs
+
+    t.agent.update = poisoned
+    with pytest.raises(TrainingDiverged, match="losses/qf_loss became nan") as e:
+        t.run()
+    t.env.close()
+    assert "\n" not in str(e.value) and "last good checkpoint" in str(e.value)
+    state = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=False)
+    assert 100 <= state["counters"]["env_steps"] <= 260
+    assert not (tmp_path / "run" / "done.json").exists()

@@ -113,13 +113,26 @@ def cli(*args):
     (["--seed", "-1"], "-1"),
     (["--init-from", "/nonexistent/run"], "/nonexistent/run"),
     (["--her-strategy", "past"], "past"),
+    (["--lr", "nan"], "nan"),
+    (["--gamma", "inf"], "inf"),
+    (["--device", "nope"], "nope"),
+    (["--device", "cuda:7"], "cuda"),
+    (["--sim-backend", "physx_cuda", "--num-envs", "4"], "physx_cuda"),
+    (["--ratio", "-0.2/1.2"], "-0.2/1.2"),
+    (["--update-schedule", "weekly"], "weekly"),
+    (["--success-buffer", "some"], "some"),
+    (["--method", "sac_her_per", "--reward-mode", "dense"], "dense"),
+    (["--env", "CloseBox-v1", "--num-envs", "2"], "num_envs=2"),
+    (["--hidden", "0"], "hidden"),
+    (["--batch-size", "x"], "'x'"),
+    (["--no-such-flag"], "--no-such-flag"),
 ])
 def test_cli_bad_input_is_one_line(tmp_path, args, needle):
     out = tmp_path / "run"
     r = cli("--out", str(out), "--steps", "50", *args)
     assert r.returncode == 2, r.stderr
-    err = [l for l in r.stderr.strip().splitlines() if l.startswith("error:")]
-    assert len(err) == 1 and needle in err[0], r.stderr
+    err = r.stderr.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error:") and needle in err[0], r.stderr
     assert "Traceback" not in r.stderr
     assert not out.exists()
 
