@@ -417,7 +417,7 @@ def summary_md(folder: Path, runs: List[Run], unfinished: List[str], tables: Dic
         s += [f"## {title} (`{name}`)", "", md_table(tables[name], cols)]
     s += ["## Hyperparameters: paper Table 3 vs ours (`hyperparameters.csv`)", "",
           md_table(hyper, ["hyperparameter", "paper", "ours_single_task", "ours_transfer"])]
-    s += ["## Tasks (`maniskill_dualher.tasks.csv`)", "", tasks_note or "See tasks.csv.", ""]
+    s += ["## Tasks (`tasks.csv`)", "", tasks_note or "See tasks.csv.", ""]
     s += ["## Figures", ""] + [f"![{f}]({f})" for f in figures] + [""]
     if unfinished:
         s += ["## Unfinished runs (not counted)", ""] + [f"- {u}" for u in unfinished] + [""]
