@@ -11,7 +11,7 @@ from typing import List, Sequence, Tuple
 
 from maniskill_dualher import protocol
 from maniskill_dualher.config import format_ratio
-from maniskill_dualher.methods import method_spec
+from maniskill_dualher.methods import METHOD_SPECS
 
 PAPER_RATIOS = ((0.5, 0.5), (0.6, 0.4), (0.7, 0.3))   # Table 4
 SCRATCH = "from scratch"                              # the chain label of the from-scratch control
@@ -36,7 +36,7 @@ PAPER_TABLE3 = [  # (hyperparameter, paper value, how to read ours from a RunCon
     ("env steps per run", "ReachTarget 500, CloseBox/CloseMicrowave 200, adaptation 120 epochs x 30000",
      lambda c: f"{c.env_id}: {c.total_steps}"),
     ("dual buffer sampling ratio P(R)/P(E)", "0.6/0.4 (best of Table 4)",
-     lambda c: method_spec(c.method).tag(c) or None),
+     lambda c: METHOD_SPECS[c.method].tag(c) or None if c.method in METHOD_SPECS else None),
     ("importance-sampling weights", "not used", lambda c: c.replay.is_weights),
     ("SAC variant", "twin Q + V with target V (Fig. 1)", lambda c: c.sac.variant),
     ("hidden layers", "not stated", lambda c: "x".join(map(str, c.sac.hidden))),
@@ -46,7 +46,8 @@ PAPER_TABLE3 = [  # (hyperparameter, paper value, how to read ours from a RunCon
     ("episode ends on success", "yes (section 4.1)", lambda c: c.terminate_on_success),
     ("target network smoothing tau", "not stated", lambda c: c.sac.tau),
     ("dual buffer: what enters E", "real reward-1 transitions (Alg. 1)",
-     lambda c: c.replay.success_buffer if method_spec(c.method).sampling_ratio else None),
+     lambda c: c.replay.success_buffer if c.method in METHOD_SPECS and METHOD_SPECS[c.method].sampling_ratio
+     else None),
     ("evaluation", "every 300 steps", lambda c: f"every {c.eval_every} steps x {c.eval_episodes} episodes"),
 ]
 
