@@ -34,16 +34,20 @@ from maniskill_dualher.fileio import atomic_write_text, atomic_write_with, csv_t
 EXTRA_COLORS = ("tab:purple", "tab:brown", "tab:green", "tab:red", "tab:pink", "tab:olive", "tab:cyan")
 
 
+_EXTRA_ASSIGNED: Dict[str, str] = {}
+
+
 def color_of(label: str) -> str:
-    """One colour per curve label in every panel: a method's own colour for its paper setting, a stable
-    extra colour for its other variants (e.g. other sampling ratios)."""
-    name, _, variant = label.replace(f" {SCRATCH}", "").partition(" ")
+    """One colour per curve label in every panel: a method's own colour for its paper setting, an extra
+    colour (assigned in order of first use, so distinct) for anything else, e.g. other sampling ratios."""
+    base = label.replace(f" {SCRATCH}", "")
+    name, _, variant = base.partition(" ")
     spec = METHOD_SPECS.get(name)
-    if spec is None:
-        return EXTRA_COLORS[sum(map(ord, label)) % len(EXTRA_COLORS)]
-    if not variant or variant == format_ratio(PAPER_RATIO):
+    if spec is not None and (not variant or variant == format_ratio(PAPER_RATIO)):
         return spec.color
-    return EXTRA_COLORS[sum(map(ord, variant)) % len(EXTRA_COLORS)]
+    if base not in _EXTRA_ASSIGNED:
+        _EXTRA_ASSIGNED[base] = EXTRA_COLORS[len(_EXTRA_ASSIGNED) % len(EXTRA_COLORS)]
+    return _EXTRA_ASSIGNED[base]
 
 
 TABLE_COLUMNS = ["experiment", "task", "chain", "method", "ratio", "metric", "n_seeds", "seeds",
@@ -234,9 +238,17 @@ def save_figure(fig, path: Path) -> None:
 
 # --------------------------------------------------------------------------- plots
 def curve(runs: List[Run], key: str, resamples: int = 2_000):
-    """Mean and 95% bootstrap band over seeds at the env steps every run evaluated."""
-    steps = sorted(set.intersection(*[{r_["env_steps"] for r_ in r.rows} for r in runs]))
-    y = np.array([[{row["env_steps"]: row[key] for row in r.rows}[s] for s in steps] for r in runs], dtype=float)
+    """Mean and 95% bootstrap band over seeds at the evaluation points every run has.
+
+    A run evaluates at the first episode end at or after each multiple of ``eval_every`` (episodes end
+    on success, so that step differs between runs), and at the end of its budget: each row is placed
+    at its nominal point ``min(total_steps, floor(env_steps / eval_every) * eval_every)``."""
+    def nominal(r: Run, row) -> float:
+        return float(min(r.cfg.total_steps, (int(row["env_steps"]) // r.cfg.eval_every) * r.cfg.eval_every))
+
+    points = [{nominal(r, row): row[key] for row in r.rows} for r in runs]
+    steps = sorted(set.intersection(*[set(p) for p in points]))
+    y = np.array([[p[s] for s in steps] for p in points], dtype=float)
     rng = np.random.default_rng(0)
     boot = y[rng.integers(0, len(runs), size=(resamples, len(runs)))].mean(axis=1)
     lo, hi = np.percentile(boot, [2.5, 97.5], axis=0)
@@ -384,7 +396,8 @@ def summary_md(folder: Path, runs: List[Run], unfinished: List[str], tables: Dic
     adapt_steps = sorted({r.cfg.total_steps for r in runs if r.lineage and r.lineage["adaptation"]})
     single_steps = sorted({(r.cfg.env_id, r.cfg.total_steps) for r in runs if r.lineage is None},
                           key=lambda x: _task_order(x[0]))
-    cols = ["task", "method", "ratio", "metric", "n_seeds", "mean", "std", "ci95_low", "ci95_high", "env_steps", "paper"]
+    cols = ["task", "chain", "method", "ratio", "metric", "n_seeds", "mean", "std", "ci95_low", "ci95_high", "env_steps",
+            "paper"]
     s = [f"# Results: {sweep.get('preset', folder.name)}", ""]
     s.append(f"{len(runs)} finished runs, seeds {seeds}"
              + (f"; {len(unfinished)} runs unfinished (not counted)" if unfinished else "") + ".")
