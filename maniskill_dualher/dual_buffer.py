@@ -23,7 +23,6 @@ from typing import Dict, Optional
 
 import numpy as np
 
-from .config import ConfigError
 from .replay.base import Batch, Episode
 from .replay.buffer import Handle, to_batch
 from .replay.her import concat_rows, real_transitions, relabel
@@ -40,12 +39,7 @@ class DualBufferReplay(BufferMethod):
 
     def __init__(self, cfg, spec, rng, device="cpu"):
         super().__init__(cfg, spec, rng, device)
-        r = float(self.rcfg.ratio[0])
-        if not 0.0 <= r <= 1.0:
-            raise ConfigError(f"ratio must be two non-negative numbers summing to 1, got {self.rcfg.ratio}")
-        if self.rcfg.dual_mode not in ("choose", "split"):
-            raise ConfigError(f"unknown dual_mode {self.rcfg.dual_mode!r} (choose 'choose' or 'split')")
-        self.r = r
+        self.r = float(self.rcfg.ratio[0])  # ratio and dual_mode are validated in RunConfig.validate
         self.mode = self.rcfg.dual_mode
         self._buffer("R", prioritized=True)
         self._buffer("E", prioritized=False)

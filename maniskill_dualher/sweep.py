@@ -17,7 +17,7 @@ import dataclasses
 import json
 import os
 import sys
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Dict, List, Optional, Sequence, Tuple
 
@@ -283,24 +283,19 @@ def _apply_budget_override(b: Budget, item: str) -> None:
 
 
 def _check_budget(b: Budget) -> None:
-    for name in ("eval_every", "eval_episodes", "checkpoint_every", "batch_size", "capacity"):
-        if getattr(b, name) <= 0:
-            raise ConfigError(f"budget {name} must be > 0, got {getattr(b, name)}")
+    """Budget-only rules here; every setting it passes on is validated once, by RunConfig.validate."""
     for name in ("single_steps", "stage_steps", "adaptation_steps"):
         for t, v in getattr(b, name).items():
             if v <= 0:
                 raise ConfigError(f"budget {name}.{t} must be > 0, got {v}")
-    if not b.hidden or min(b.hidden) <= 0:
-        raise ConfigError(f"budget hidden must be positive layer sizes, got {b.hidden}")
-    if b.max_episode_steps is not None and b.max_episode_steps <= 0:
-        raise ConfigError(f"budget max_episode_steps must be > 0, got {b.max_episode_steps}")
-    if b.sim_backend not in ("physx_cpu", "physx_cuda") or b.num_envs < 1:
-        raise ConfigError(f"budget sim_backend must be physx_cpu or physx_cuda and num_envs >= 1, "
-                          f"got {b.sim_backend!r}, {b.num_envs}")
-    if b.sim_backend == "physx_cpu" and b.num_envs != 1:
-        raise ConfigError(f"budget num_envs={b.num_envs} needs sim_backend=physx_cuda (CPU simulation runs one env)")
-    if min(b.random_steps, b.learning_starts) < 0 or b.updates_per_step <= 0:
-        raise ConfigError("budget random_steps/learning_starts must be >= 0 and updates_per_step > 0")
+    if min(b.random_steps, b.learning_starts) < 0:
+        raise ConfigError("budget random_steps/learning_starts must be >= 0")
+    cfg = base_config(b, next(iter(METHOD_SPECS)), 0)
+    cfg.env_id = protocol.TASKS[0]
+    try:
+        cfg.validate()
+    except ConfigError as e:
+        raise ConfigError(f"budget: {e}") from None
 
 
 def definition_from_args(a: argparse.Namespace) -> dict:
