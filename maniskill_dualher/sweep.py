@@ -92,7 +92,8 @@ PRESETS: Dict[str, Budget] = {
         adaptation_steps=_per_task(150, 150, 150), seeds=(0, 1),
         eval_every=100, eval_episodes=2, checkpoint_every=50, max_episode_steps=50,
         hidden=(32, 32), batch_size=32, random_steps=100, learning_starts=100, capacity=10_000),
-    # Default: the whole grid, every table and plot, on a 2-core CPU in about an hour (AVX2 EPYC).
+    # Default: the whole grid, every table and plot, on a 2-core CPU in about an hour (67 min on an AMD EPYC
+    # with AVX512-BF16).
     # Episodes end on success (paper 4.1), 100 steps at most. Deviations from the paper, so that runs learn
     # within a CPU budget, measured with the train CLI (one seed, sac_her_per, episodes ending on success):
     # rl-zoo goal-task settings (modern SAC with learned alpha, 64x64, lr 1e-3, tau 0.05, gamma 0.95,

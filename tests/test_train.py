@@ -173,7 +173,7 @@ def test_sac_learns_pendulum(tmp_path):
 @pytest.mark.parametrize("task", ["ReachTarget-v1", "CloseBox-v1", "CloseMicrowave-v1"])
 def test_quick_preset_solves_every_task(tmp_path, task):
     """The quick preset's settings: sac_her_per reaches >= 0.9 evaluation success on every task within its
-    single-task budget (measured, seed 0, AVX2 EPYC: CloseBox 1.0 at 6k, CloseMicrowave 1.0 at 9k env steps)."""
+    single-task budget (measured, seed 0, AMD EPYC with AVX512-BF16: CloseBox 1.0 at 6k, CloseMicrowave 1.0 at 9k env steps)."""
     from maniskill_dualher.sweep import PRESETS, base_config
     b = PRESETS["quick"]
     cfg = base_config(b, "sac_her_per", 0)
