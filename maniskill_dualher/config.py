@@ -20,6 +20,9 @@ from typing import Any, Optional, Tuple
 
 
 MATMUL_PRECISIONS = ("highest", "high", "medium")
+SAC_VARIANTS = ("paper", "modern")
+HER_STRATEGIES = ("future", "final", "episode")
+DUAL_MODES = ("choose", "split")
 UPDATE_SCHEDULES = ("step", "episode")
 SUCCESS_BUFFER_MODES = ("transitions", "episodes")
 SIM_BACKENDS = ("physx_cpu", "physx_cuda")
@@ -146,16 +149,17 @@ class RunConfig:
                 raise ConfigError(f"{name} must be a finite number, got {v!r}")
         if s.target_entropy is not None and not math.isfinite(s.target_entropy):
             raise ConfigError(f"target_entropy must be a finite number, got {s.target_entropy!r}")
-        if s.variant not in ("paper", "modern"):
-            raise ConfigError(f"unknown SAC variant {s.variant!r} (choose 'paper' or 'modern')")
-        if s.matmul_precision not in MATMUL_PRECISIONS:
-            raise ConfigError(f"unknown matmul_precision {s.matmul_precision!r} (choose {', '.join(MATMUL_PRECISIONS)})")
+        for name, value, choices in (("SAC variant", s.variant, SAC_VARIANTS),
+                                     ("matmul_precision", s.matmul_precision, MATMUL_PRECISIONS),
+                                     ("HER strategy", r.her_strategy, HER_STRATEGIES),
+                                     ("dual_mode", r.dual_mode, DUAL_MODES),
+                                     ("update_schedule", s.update_schedule, UPDATE_SCHEDULES),
+                                     ("success_buffer", r.success_buffer, SUCCESS_BUFFER_MODES),
+                                     ("sim_backend", self.sim_backend, SIM_BACKENDS)):
+            if value not in choices:
+                raise ConfigError(f"unknown {name} {value!r} (choose {', '.join(choices)})")
         if len(r.ratio) != 2 or min(r.ratio) < 0 or abs(sum(r.ratio) - 1.0) > 1e-6:
             raise ConfigError(f"ratio must be two non-negative numbers summing to 1, got {format_ratio(r.ratio)}")
-        if r.her_strategy not in ("future", "final", "episode"):
-            raise ConfigError(f"unknown HER strategy {r.her_strategy!r} (choose future, final or episode)")
-        if r.dual_mode not in ("choose", "split"):
-            raise ConfigError(f"unknown dual_mode {r.dual_mode!r} (choose 'choose' or 'split')")
         for name, v in (("lr", s.lr), ("batch_size", s.batch_size), ("capacity", r.capacity)):
             if v <= 0:
                 raise ConfigError(f"{name} must be > 0, got {v}")
@@ -163,8 +167,6 @@ class RunConfig:
             raise ConfigError(f"gamma must be in (0, 1], got {s.gamma}")
         if r.her_k < 0:
             raise ConfigError(f"her_k must be >= 0, got {r.her_k}")
-        if s.update_schedule not in UPDATE_SCHEDULES:
-            raise ConfigError(f"unknown update_schedule {s.update_schedule!r} (choose {' or '.join(UPDATE_SCHEDULES)})")
         if s.updates_per_step <= 0 or s.updates_per_episode <= 0:
             raise ConfigError(f"updates_per_step and updates_per_episode must be > 0, got "
                               f"{s.updates_per_step}, {s.updates_per_episode}")
@@ -172,8 +174,6 @@ class RunConfig:
             raise ConfigError(f"tau must be in (0, 1], got {s.tau}")
         if s.log_every < 1:
             raise ConfigError(f"log_every must be >= 1, got {s.log_every}")
-        if r.success_buffer not in SUCCESS_BUFFER_MODES:
-            raise ConfigError(f"unknown success_buffer {r.success_buffer!r} (choose {' or '.join(SUCCESS_BUFFER_MODES)})")
         if self.max_episode_steps is not None and self.max_episode_steps < 1:
             raise ConfigError(f"max_episode_steps must be >= 1, got {self.max_episode_steps}")
         if not s.hidden or min(s.hidden) < 1:
@@ -183,8 +183,6 @@ class RunConfig:
                               f"{self.eval_every}, {self.eval_episodes}, {self.checkpoint_every}")
         if self.torch_threads < 1:
             raise ConfigError(f"torch_threads must be >= 1, got {self.torch_threads}")
-        if self.sim_backend not in SIM_BACKENDS:
-            raise ConfigError(f"unknown sim_backend {self.sim_backend!r} (choose {' or '.join(SIM_BACKENDS)})")
         if self.sim_backend == "physx_cpu" and self.num_envs != 1 and self.env_id in OUR_TASKS:
             raise ConfigError(f"num_envs={self.num_envs} needs sim_backend='physx_cuda'; "
                               "ManiSkill's CPU simulation runs one env per process")

@@ -155,8 +155,7 @@ class BatchEnv:
     def reset(self, seed: int) -> np.ndarray:
         """Reset every env; env i gets seed ``seed + i`` (one env: ``seed``). Returns (N, D)."""
         n = self.num_envs
-        obs, _ = self.env.reset(seed=int(seed) if n == 1 else [int(seed) + i for i in range(n)])
-        return self._flat(obs)
+        return self.reset_envs(np.arange(n), [int(seed) + i for i in range(n)])
 
     def reset_envs(self, idx: np.ndarray, seeds) -> np.ndarray:
         """Reset the envs ``idx`` (the others keep running) with one seed each; returns their (len(idx), D) rows.

@@ -24,7 +24,6 @@ from typing import List, Sequence, Union
 from maniskill_dualher import rundir
 from maniskill_dualher.config import ConfigError, RunConfig
 from maniskill_dualher.methods import method_spec
-from maniskill_dualher.rundir import is_done  # noqa: F401  (protocol.is_done: a stage is finished)
 
 PathLike = Union[str, Path]
 
@@ -106,7 +105,7 @@ def run_stage(stages: Sequence[RunConfig], i: int, chain_dir: PathLike, carry_re
     init_from = None
     if i > 0:
         init_from = chain_dir / stage_dirname(stages, i - 1, carry_replay)
-        if not is_done(init_from):
+        if not rundir.is_done(init_from):
             raise ConfigError(f"stage {i} needs finished stage {i - 1} at {init_from}")
     if rundir.read_stage(out) is None:
         rundir.write_stage(out, stage_lineage(stages, i, carry_replay))
@@ -128,5 +127,3 @@ def transfer_chain_dirs(out_dir: PathLike, stages: Sequence[RunConfig], carry_re
     """The stage folders ``run_transfer`` uses, in order."""
     return [Path(out_dir) / stage_dirname(stages, i, carry_replay) for i in range(len(stages))]
 
-
-read_lineage = rundir.read_stage

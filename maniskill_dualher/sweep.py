@@ -584,7 +584,7 @@ def run_grid(nodes: List[Node], out: Path, backend, progress: bool = True) -> Li
     from tqdm import tqdm
 
     by_rel = {n.rel: n for n in nodes}
-    done = {n.rel for n in nodes if protocol.is_done(out / n.rel)}
+    done = {n.rel for n in nodes if rundir.is_done(out / n.rel)}
     todo = [n for n in nodes if n.rel not in done]
     failed: List[str] = []
     in_flight: Dict[object, Node] = {}
@@ -646,10 +646,10 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         print(f"error: {e}", file=sys.stderr)
         return 2
     workers = a.workers or (None if a.ray_address else min(2, os.cpu_count() or 1))
-    todo_cfgs = [n.cfg for n in nodes if not protocol.is_done(out / n.rel)]
+    todo_cfgs = [n.cfg for n in nodes if not rundir.is_done(out / n.rel)]
     if a.dry_run:
         for n in nodes:
-            state = "done" if protocol.is_done(out / n.rel) else "todo"
+            state = "done" if rundir.is_done(out / n.rel) else "todo"
             print(f"{state}  {n.rel}")
         if todo_cfgs:
             from maniskill_dualher.cost import describe, grid_cost

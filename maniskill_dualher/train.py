@@ -70,7 +70,7 @@ class Trainer:
         self.cfg = cfg.validate()
         self.out = Path(out_dir)
         self.show_progress = show_progress
-        self.cfg_keep_replay = keep_replay  # a finished run keeps its replay only if a later stage reads it
+        self.keep_replay = keep_replay  # a finished run keeps its replay only if a later stage reads it
         self._check_out_dir()
         init_state = load_checkpoint(Path(init_from)) if init_from is not None else None
 
@@ -158,8 +158,12 @@ class Trainer:
         self.rng.bit_generator.state = state["rng"]
         torch.set_rng_state(state["torch_rng"])
 
-    def save_checkpoint(self) -> None:
-        atomic_torch_save(self._state(), self.out / CHECKPOINT)
+    def save_checkpoint(self, replay: bool = True) -> None:
+        """Write the checkpoint; ``replay=False`` leaves the replay buffers out (a finished run nobody resumes)."""
+        state = self._state()
+        if not replay:
+            state["method"] = None
+        atomic_torch_save(state, self.out / CHECKPOINT)
 
     # ------------------------------------------------------------ rollouts
     def _episode(self, cols: Dict[str, np.ndarray]) -> Episode:
@@ -310,8 +314,8 @@ class Trainer:
             self.tb.close()
         final = dict(self.rows[-1])
         rundir.write_done(self.out, final, demo_env_steps=self.demo_env_steps)
-        if not self.cfg_keep_replay:
-            drop_replay(self.out)
+        if not self.keep_replay:  # after done.json: a kill before it still leaves a resumable checkpoint
+            self.save_checkpoint(replay=False)
         return final
 
     # ------------------------------------------------------------ loop pieces
@@ -400,7 +404,10 @@ class EpisodeAssembler:
     KEYS = ("flat", "action", "reward", "next_flat", "terminated", "success")
 
     def __init__(self, n: int):
-        self.cols: List[Dict[str, list]] = [{k: [] for k in self.KEYS} for _ in range(n)]
+        self.cols: List[Dict[str, list]] = [self._empty() for _ in range(n)]
+
+    def _empty(self) -> Dict[str, list]:
+        return {k: [] for k in self.KEYS}
 
     def append(self, **step: np.ndarray) -> None:
         for i, c in enumerate(self.cols):
@@ -413,24 +420,12 @@ class EpisodeAssembler:
     def pop(self, i: int) -> Dict[str, np.ndarray]:
         c = self.cols[i]
         out = {k: np.stack(v) for k, v in c.items()}
-        self.cols[i] = {k: [] for k in self.KEYS}
+        self.cols[i] = self._empty()
         return out
 
     def clear(self, mask: np.ndarray) -> None:
         for i in np.flatnonzero(mask):
-            self.cols[i] = {k: [] for k in self.KEYS}
-
-
-def drop_replay(run_dir: Path) -> None:
-    """Rewrite a finished run's checkpoint without its replay buffers (what only a successor stage reads)."""
-    path = Path(run_dir) / CHECKPOINT
-    if not path.is_file():
-        return
-    state = torch.load(path, map_location="cpu", weights_only=False)
-    if state.get("method") is None:
-        return
-    state["method"] = None
-    atomic_torch_save(state, path)
+            self.cols[i] = self._empty()
 
 
 def _solver_action(solver, env: BatchEnv) -> np.ndarray:

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from maniskill_dualher import protocol, sweep
+from maniskill_dualher import protocol, rundir, sweep
 from maniskill_dualher.config import ReplayConfig, RunConfig, SACConfig
 
 REPO = Path(__file__).resolve().parents[1]
@@ -118,7 +118,7 @@ def test_smoke_local_end_to_end(smoke_local):
     # + the from-scratch control: 2 methods x 2 seeds
     assert len(d["runs"]) == 18 + 12 + 4 + 4
     assert len([r for r in d["runs"] if r.startswith("runs/scratch/")]) == 4
-    assert all(protocol.is_done(out / r) for r in d["runs"])
+    assert all(rundir.is_done(out / r) for r in d["runs"])
     # the ratio study shares the source stages with transfer's dual_buffer chain: one stage0 per seed
     assert len(list((out / "runs/transfer/dual_buffer-s0").glob("stage0-*"))) == 1
     assert len(list((out / "runs/transfer/dual_buffer-s0").glob("stage2-*"))) == 3
@@ -216,14 +216,14 @@ def test_sigkill_midway_then_resume_gives_identical_tables(smoke_local, tmp_path
     try:
         deadline = time.time() + 300
         while time.time() < deadline and p.poll() is None:
-            if [c for c in out.glob("runs/**/checkpoint.pt") if not protocol.is_done(c.parent)]:
+            if [c for c in out.glob("runs/**/checkpoint.pt") if not rundir.is_done(c.parent)]:
                 break
             time.sleep(0.02)
         assert p.poll() is None, "the sweep finished before it could be killed"
         workers = _children(p.pid)
         p.send_signal(signal.SIGKILL)
         p.wait()
-        interrupted = [c.parent for c in out.glob("runs/**/checkpoint.pt") if not protocol.is_done(c.parent)]
+        interrupted = [c.parent for c in out.glob("runs/**/checkpoint.pt") if not rundir.is_done(c.parent)]
         assert interrupted, "no run was mid-way when the sweep was killed"
         t_end = time.time() + 15
         while any(_alive(w) for w in workers) and time.time() < t_end:
@@ -238,7 +238,7 @@ def test_sigkill_midway_then_resume_gives_identical_tables(smoke_local, tmp_path
     assert not (out / "summary.md").exists()
     r = _cli(*args)
     assert r.returncode == 0, r.stderr[-2000:]
-    assert all(protocol.is_done(d) for d in interrupted)
+    assert all(rundir.is_done(d) for d in interrupted)
     assert _tables_bytes(out) == _tables_bytes(ref)
 
 
@@ -270,7 +270,7 @@ def test_run_transfer_chains_networks_and_replay(tmp_path):
     stages = protocol.make_stages(_tiny("ReachTarget-v1"), ["ReachTarget-v1", "CloseMicrowave-v1"], [150, 150])
     rows = protocol.run_transfer(stages, tmp_path / "chain", carry_replay=True, show_progress=False)
     d0, d1 = protocol.transfer_chain_dirs(tmp_path / "chain", stages, True)
-    assert len(rows) == 2 and all(protocol.is_done(d) for d in (d0, d1))
+    assert len(rows) == 2 and all(rundir.is_done(d) for d in (d0, d1))
     info = json.loads((d1 / "stage.json").read_text())
     assert info["stage"] == 1 and info["adaptation"] and info["parent"] == d0.name
     assert json.loads((d1 / "lineage.json").read_text())["init_from"] == str(d0)

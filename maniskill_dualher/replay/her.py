@@ -11,10 +11,10 @@ from typing import Dict, Optional
 
 import numpy as np
 
-from ..config import ConfigError
+from ..config import HER_STRATEGIES, ConfigError
 from .base import Episode, RewardFn, goal_input
 
-STRATEGIES = ("future", "final", "episode")
+STRATEGIES = HER_STRATEGIES  # validated in RunConfig.validate
 _F32 = np.float32
 
 
@@ -50,7 +50,7 @@ def goal_indices(T: int, N: int, strategy: str, k: int, rng: np.random.Generator
         return np.full((T, N, k), T - 1, dtype=np.int64)
     if strategy == "episode":
         return rng.integers(0, T, (T, N, k), dtype=np.int64)
-    raise ConfigError(f"unknown HER strategy {strategy!r} (choose future, final or episode)")
+    raise ConfigError(f"unknown HER strategy {strategy!r} (choose {', '.join(STRATEGIES)})")
 
 
 def _row_info(info: Optional[dict], T: int, N: int, k: int) -> Optional[dict]:
