@@ -6,11 +6,13 @@ HerReplayBuffer; plus the per-update cost (ms) of each, and of ours for every me
 dual_buffer) x SAC variant (paper, modern). Peers: lr 3e-4, tau 0.005, gamma 0.99 (SB3's defaults, also
 SBX's), buffer 1e6, learning_starts 1000, train_freq 1, gradient_steps 1.
 
-Matmul precision. Ours runs with its default ``matmul_precision="medium"`` (oneDNN may use bf16 kernels
-for fp32 matmuls; results stay at fp32 rounding level, tests/test_sac.py) and, as a control, with
-"highest" (strict fp32). SB3 runs as users get it ("highest", torch's default) and with the same "medium"
-switch set around its calls, so the table separates what the setting buys from what the implementation
-buys. SBX runs as users get it (JAX, fp32 on CPU).
+Our contenders. (1) Ours as configured by default: the fused update (hand-written gradients,
+maniskill_dualher/sac_fused.py; autograd's values to float rounding) in strict fp32 ("highest"). (2) Ours at
+its fastest settings: the fused update with bf16 inputs to the hidden-to-hidden products
+(``matmul_precision="bf16"``, learning-checked in tests/test_sac_fused.py) under ``torch.compile``
+(``SACConfig.compile``; compiled during the untimed warm-up). (3) Control: the autograd update at "medium",
+this project's loop before the fused update. SB3 runs as users get it ("highest", torch's default) and, as a
+control, with torch's "medium" switch set around its calls. SBX runs as users get it (JAX, fp32 on CPU).
 
     python bench/train_speed.py [--steps 2000] [--threads 1] [--chunk 500] [--updates 300] [--no-sbx]
     python bench/train_speed.py --profile [--variant paper] [--updates 200]   # where one SAC.update goes
@@ -57,7 +59,7 @@ ENV_KW = dict(sim_backend="physx_cpu", render_backend="none", obs_mode="state",
 
 
 # --------------------------------------------------------------------------- ours
-def our_config(method: str, variant: str, threads: int, seed: int = 0, precision: str = "medium"):
+def our_config(method: str, variant: str, threads: int, seed: int = 0, **sac_kw):
     import dataclasses
     from maniskill_dualher.config import ReplayConfig, RunConfig, SACConfig
     extra = {}
@@ -68,7 +70,7 @@ def our_config(method: str, variant: str, threads: int, seed: int = 0, precision
         control_mode=ENV_KW["control_mode"], sim_backend=ENV_KW["sim_backend"], reward_mode="sparse",
         eval_every=10**9, checkpoint_every=10**9, torch_threads=threads, **extra,
         sac=SACConfig(variant=variant, batch_size=256, hidden=(256, 256), updates_per_step=1.0,
-                      random_steps=LEARNING_STARTS, learning_starts=LEARNING_STARTS, matmul_precision=precision),
+                      random_steps=LEARNING_STARTS, learning_starts=LEARNING_STARTS, **sac_kw),
         replay=ReplayConfig(capacity=CAPACITY, her_strategy="future", her_k=4,
                             solver_demos=5 if method == "dual_buffer" else 0))
 
@@ -76,12 +78,16 @@ def our_config(method: str, variant: str, threads: int, seed: int = 0, precision
 class Ours:
     """Our Trainer, driven in time slices with run(stop_at=...)."""
 
-    def __init__(self, method: str, variant: str, threads: int, tmp: str, precision: str = "medium"):
+    def __init__(self, method: str, variant: str, threads: int, tmp: str, impl: str = "fused",
+                 precision: str = "highest", compile: bool = False):
         from maniskill_dualher.train import Trainer
-        self.name = f"ours {method} ({variant}, {precision})"
+        self.precision = precision
+        label = f"{variant}, {impl}, {precision}" + (", compiled" if compile else "")
+        self.name = f"ours {method} ({label})"
         self.threads = threads
-        out = os.path.join(tmp, f"{method}_{variant}_{precision}")
-        self.tr = Trainer(our_config(method, variant, threads, precision=precision), out, show_progress=False)
+        out = os.path.join(tmp, f"{method}_{label}".replace(", ", "_"))
+        cfg = our_config(method, variant, threads, update_impl=impl, matmul_precision=precision, compile=compile)
+        self.tr = Trainer(cfg, out, show_progress=False)
         self._stop_t = None
 
         def stamp():  # replaces the stop-checkpoint: the chunk ends when its last episode is stored
@@ -244,9 +250,12 @@ def matmul_flops(fn) -> float:
 
 
 def matmul_rate(precision: str, n: int = 256, iters: int = 300) -> float:
-    """This CPU's fp32 matmul throughput (GFLOP/s) on the update's dominant shape, (n x n) @ (n x n)."""
+    """This CPU's matmul throughput (GFLOP/s) on the update's dominant shape, (n x n) @ (n x n): fp32 under
+    torch's ``precision`` setting, or bfloat16 inputs for "bf16" (the rate of the bf16 contender's hidden layers;
+    its other products run at the fp32 rate, so its floor from this rate is a lower bound)."""
     from maniskill_dualher.sac import matmul_precision
-    a, b = torch.randn(n, n), torch.randn(n, n)
+    dtype = torch.bfloat16 if precision == "bf16" else torch.float32
+    a, b = torch.randn(n, n, dtype=dtype), torch.randn(n, n, dtype=dtype)
     with matmul_precision(precision):
         for _ in range(20):
             a @ b
@@ -269,9 +278,13 @@ def bench(args) -> None:
     print(f"# threads: {thread_info()}")
     print(f"# load average at start: {loadavg()}")
 
+    # ours as configured by default (fused update, strict fp32), then the fastest settings (bf16 hidden
+    # products + torch.compile); the control is the autograd update at "medium" (this project's loop before
+    # the fused update)
     loop = [Ours("sac_her_per", v, args.threads, tmp) for v in args.variants]
+    loop.append(Ours("sac_her_per", args.variants[-1], args.threads, tmp, precision="bf16", compile=True))
     if not args.skip_controls:
-        loop.append(Ours("sac_her_per", args.variants[-1], args.threads, tmp, precision="highest"))
+        loop.append(Ours("sac_her_per", args.variants[-1], args.threads, tmp, impl="autograd", precision="medium"))
     sb3 = [SB3(args.threads)] + ([] if args.skip_controls else [SB3(args.threads, precision="medium")])
     why = "--no-sbx" if args.no_sbx else sbx_missing()
     if why is None:
@@ -357,14 +370,15 @@ def floors(loop, sb3, sps, nou, upd, full_fns) -> None:
     cannot cost less than that floor plus the loop's no-update step. So ours/SB3 in env steps/s is at most
     (SB3's measured step time) / (our floor + our no-update step time), whatever else is optimised."""
     print()
-    print("matmul floor (FLOPs counted by torch's profiler; rate = this CPU's (256x256)@(256x256) fp32 matmul)")
+    print("matmul floor (FLOPs counted by torch's profiler; rate = this CPU's (256x256)@(256x256) matmul at the "
+          "contender's precision)")
     hdr = f"{'contender':34s} {'GFLOP/update':>12s} {'GFLOP/s':>8s} {'floor ms':>9s} {'update ms':>10s} {'matmul share':>13s}"
     print(hdr)
     print("-" * len(hdr))
     rates = {}
     floor_ms = {}
     for c in loop:
-        prec = "medium" if "medium" in c.name else "highest"
+        prec = c.precision if isinstance(getattr(c, "precision", None), str) else c._precision
         if prec not in rates:
             rates[prec] = matmul_rate(prec)
         gf = matmul_flops(full_fns[c.name]) / 1e9

@@ -15,11 +15,13 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import shutil
 from dataclasses import dataclass, field
 from typing import Any, Optional, Tuple
 
 
-MATMUL_PRECISIONS = ("highest", "high", "medium")
+MATMUL_PRECISIONS = ("highest", "high", "medium", "bf16")
+UPDATE_IMPLS = ("fused", "autograd")
 SAC_VARIANTS = ("paper", "modern")
 HER_STRATEGIES = ("future", "final", "episode")
 DUAL_MODES = ("choose", "split")
@@ -74,9 +76,17 @@ class SACConfig:
     # importance weights on the critic loss only, never the actor's (against PER's harm to actor-critic, LA3P)
     is_weights_critic_only: bool = False
     actor_uniform_batch: bool = False     # train the actor on its own uniform batch (LAP/PAL-style option)
-    # torch float32 matmul precision during updates and acting: "medium" lets oneDNN/cuBLAS use bf16/TF32
-    # kernels (fp32-level results, tests/test_sac.py; 1.7x faster on AVX512-BF16 CPUs); "high"; "highest" = strict fp32
-    matmul_precision: str = "medium"
+    # matmul precision of updates and acting: "highest" = strict fp32 (on CPUs also the fastest fp32 choice for
+    # the fused update); "high"/"medium" = torch's setting (oneDNN/cuBLAS may use TF32/bf16 kernels, fp32-level
+    # results, tests/test_sac.py); "bf16" = the fused update's hidden-to-hidden products take bfloat16 inputs
+    # (rounds beyond fp32, its own learning check; ~2x their fp32 rate on CPUs with AVX512-BF16 or AMX)
+    matmul_precision: str = "highest"
+    # how the update gets its gradients: "fused" = written out by hand (sac_fused.py; autograd's values to
+    # float rounding, tests/test_sac_fused.py; faster); "autograd" = torch autograd over sac.py's losses
+    update_impl: str = "fused"
+    # hand the fused update to torch.compile (inductor; needs a C++ compiler on CPU): ~25% faster updates
+    # after a one-off compilation of 15-40 s per process (cached on disk after); float-rounding-level changes
+    compile: bool = False
 
     def resolved_learn_alpha(self) -> bool:
         return (self.variant == "modern") if self.learn_alpha is None else bool(self.learn_alpha)
@@ -151,6 +161,7 @@ class RunConfig:
             raise ConfigError(f"target_entropy must be a finite number, got {s.target_entropy!r}")
         for name, value, choices in (("SAC variant", s.variant, SAC_VARIANTS),
                                      ("matmul_precision", s.matmul_precision, MATMUL_PRECISIONS),
+                                     ("update_impl", s.update_impl, UPDATE_IMPLS),
                                      ("HER strategy", r.her_strategy, HER_STRATEGIES),
                                      ("dual_mode", r.dual_mode, DUAL_MODES),
                                      ("update_schedule", s.update_schedule, UPDATE_SCHEDULES),
@@ -158,6 +169,14 @@ class RunConfig:
                                      ("sim_backend", self.sim_backend, SIM_BACKENDS)):
             if value not in choices:
                 raise ConfigError(f"unknown {name} {value!r} (choose {', '.join(choices)})")
+        if s.compile and s.update_impl != "fused":
+            raise ConfigError("compile needs update_impl 'fused' (it compiles the fused update)")
+        if s.compile and not isinstance(s.compile, bool):
+            raise ConfigError(f"compile must be true or false, got {s.compile!r}")
+        if s.compile and self.device == "cpu" and not any(shutil.which(c) for c in ("c++", "g++", "clang++")):
+            raise ConfigError("compile on the CPU needs a C++ compiler (c++, g++ or clang++ on PATH); none found")
+        if s.matmul_precision == "bf16" and s.update_impl != "fused":
+            raise ConfigError("matmul_precision 'bf16' needs update_impl 'fused' (autograd runs fp32 matmuls)")
         if len(r.ratio) != 2 or min(r.ratio) < 0 or abs(sum(r.ratio) - 1.0) > 1e-6:
             raise ConfigError(f"ratio must be two non-negative numbers summing to 1, got {format_ratio(r.ratio)}")
         for name, v in (("lr", s.lr), ("batch_size", s.batch_size), ("capacity", r.capacity)):

@@ -36,7 +36,10 @@ LOG_STD_MIN, LOG_STD_MAX = -5.0, 2.0
 
 @contextlib.contextmanager
 def matmul_precision(precision: str):
-    """torch.set_float32_matmul_precision for a block, restored after (it is process-global)."""
+    """torch.set_float32_matmul_precision for a block, restored after (it is process-global). "bf16" (the
+    fused update's own bf16 products, sac_fused.py) runs every other product in strict fp32."""
+    if precision == "bf16":
+        precision = "highest"
     old = torch.get_float32_matmul_precision()
     if old == precision:
         yield
@@ -141,6 +144,7 @@ class SAC(nn.Module):
         self.optimizer = self.make_optimizer()
         self._online_params = list(self._online.parameters())
         self._target_params = list(self._target.parameters())
+        self._fused = None  # sac_fused.FusedUpdate, built at the first fused update
 
     # ------------------------------------------------------------------ acting
     def make_optimizer(self) -> torch.optim.Optimizer:
@@ -169,6 +173,11 @@ class SAC(nn.Module):
         ``logs`` (losses, alpha, entropy, Q) is filled only when ``want_logs``: reading them forces a
         device sync, so the training loop asks on its own schedule (``SACConfig.log_every``)."""
         with matmul_precision(self.cfg.matmul_precision):
+            if self.cfg.update_impl == "fused":
+                if self._fused is None:
+                    from .sac_fused import FusedUpdate
+                    self._fused = FusedUpdate(self)
+                return self._fused(batch, actor_batch, want_logs)
             return self._update(batch, actor_batch, want_logs)
 
     def _update(self, batch: Batch, actor_batch: Optional[Batch],

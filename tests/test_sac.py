@@ -58,8 +58,8 @@ def test_matmul_precision_context_restores():
 
 def test_unknown_precision_is_a_config_error():
     cfg = RunConfig()
-    cfg.sac.matmul_precision = "bf16"
-    with pytest.raises(ConfigError, match="bf16"):
+    cfg.sac.matmul_precision = "fp8"
+    with pytest.raises(ConfigError, match="fp8"):
         cfg.validate()
 
 
