@@ -2,6 +2,9 @@
 
 * Importing this module first pins the thread counts (``--threads N`` from argv, default 1): OpenMP/MKL/
   OpenBLAS get N threads, and JAX (SBX) gets one thread when N == 1. Import it before numpy, torch or jax.
+  ``--cores K`` (default: all) also pins the process to K CPUs. Why: even at one intra-op thread JAX runs
+  its computations on a runtime thread of its own, which the OS may put on a second core (SBX then keeps
+  one core's caches for the env and another's for the update); ``--cores 1`` compares on one core each.
 * ``GoalDictEnv``: one of our tasks as a single-env gymnasium GoalEnv (Dict obs, ``compute_reward``) for
   Stable-Baselines3 / SBX and their ``HerReplayBuffer``.
 * ``make_peer_sac``: SB3 or SBX SAC + SB3's HerReplayBuffer (future strategy); ``sbx_missing`` says why
@@ -20,14 +23,31 @@ import sys
 XLA_ONE_THREAD = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
 
 
-def argv_threads(argv=None, default: int = 1) -> int:
+def argv_int(flag: str, argv=None, default: int = 1) -> int:
     argv = sys.argv if argv is None else argv
     for i, a in enumerate(argv):
-        if a == "--threads" and i + 1 < len(argv):
+        if a == flag and i + 1 < len(argv):
             return int(argv[i + 1])
-        if a.startswith("--threads="):
+        if a.startswith(flag + "="):
             return int(a.split("=", 1)[1])
     return default
+
+
+def argv_threads(argv=None, default: int = 1) -> int:
+    return argv_int("--threads", argv, default)
+
+
+def pin_cores(k: int) -> None:
+    """Restrict this process (and every thread it starts later) to its first k allowed CPUs; 0 = all."""
+    if k > 0 and hasattr(os, "sched_setaffinity"):
+        os.sched_setaffinity(0, sorted(os.sched_getaffinity(0))[:k])
+
+
+def cores_info() -> str:
+    if not hasattr(os, "sched_getaffinity"):
+        return f"cores: {os.cpu_count()}"
+    cpus = sorted(os.sched_getaffinity(0))
+    return f"pinned to CPUs {cpus} of {os.cpu_count()}"
 
 
 def pin_threads(n: int) -> None:
@@ -39,6 +59,7 @@ def pin_threads(n: int) -> None:
 
 
 pin_threads(argv_threads())
+pin_cores(argv_int("--cores", default=0))
 
 import numpy as np  # noqa: E402
 import gymnasium as gym  # noqa: E402
@@ -199,7 +220,7 @@ def thread_info() -> str:
     import torch
     env = ", ".join(f"{k}={os.environ.get(k, '(unset)')}" for k in ("OMP_NUM_THREADS", "MKL_NUM_THREADS"))
     return (f"torch threads {torch.get_num_threads()} (interop {torch.get_num_interop_threads()}), {env}, "
-            f"XLA_FLAGS={os.environ.get('XLA_FLAGS', '(unset)')!r}")
+            f"XLA_FLAGS={os.environ.get('XLA_FLAGS', '(unset)')!r}; {cores_info()}")
 
 
 def atomic_write_json(path: str, doc) -> None:

@@ -14,7 +14,7 @@ its fastest settings: the fused update with bf16 inputs to the hidden-to-hidden 
 this project's loop before the fused update. SB3 runs as users get it ("highest", torch's default) and, as a
 control, with torch's "medium" switch set around its calls. SBX runs as users get it (JAX, fp32 on CPU).
 
-    python bench/train_speed.py [--steps 2000] [--threads 1] [--chunk 500] [--updates 300] [--no-sbx]
+    python bench/train_speed.py [--steps 2000] [--threads 1] [--cores 0|1] [--chunk 500] [--updates 300] [--no-sbx]
     python bench/train_speed.py --profile [--variant paper] [--updates 200]   # where one SAC.update goes
 
 Method. Each contender warms up untimed (``learning_starts`` = 1000 random steps, then 100 learning steps;
@@ -109,10 +109,12 @@ class Ours:
         return self._stop_t - t0
 
     def warmup(self) -> float:
-        """Random steps up to learning_starts (timed, reported as the no-update speed), then learning steps."""
-        dt = self.run(LEARNING_STARTS)
+        """Random steps up to learning_starts (timed but for the last episode, reported as the no-update speed;
+        our loop makes its first update, and with ``compile`` compiles it, as that episode ends), then
+        learning steps."""
+        dt = self.run(LEARNING_STARTS - EP_LEN)
         s0 = self.steps
-        self.run(LEARN_WARMUP)
+        self.run(EP_LEN + LEARN_WARMUP)
         assert self.tr.updates > 0, "no gradient updates after warm-up"
         return s0 / dt
 
@@ -452,6 +454,9 @@ def main(argv=None) -> int:
     p.add_argument("--steps", type=int, default=2000, help="timed env steps per loop contender (K)")
     p.add_argument("--chunk", type=int, default=500, help="env steps per alternating chunk")
     p.add_argument("--threads", type=int, default=1, help="torch threads (both contenders)")
+    p.add_argument("--cores", type=int, default=0,
+                   help="pin the process to this many CPUs (0 = all; 1 = one core for every contender, SBX's "
+                        "JAX runtime thread included)")
     p.add_argument("--updates", type=int, default=300, help="updates timed per contender in the update bench")
     p.add_argument("--variant", choices=("paper", "modern", "both"), default="both", help="our SAC variant(s)")
     p.add_argument("--skip-methods", action="store_true", help="update bench: skip sac and dual_buffer")

@@ -10,9 +10,11 @@ Two variants behind one switch (``SACConfig.variant``):
   learned α towards a target entropy of -|A|.
       y      = r + γ (1 - d) (min_i Q̄_i(s', a') - α log π(a'|s')),  a' ~ π(s')
 
-Speed: the two critics are one ensemble evaluated with batched matmuls, all losses are summed and
-back-propagated once (losses touch disjoint parameters because the actor loss reads detached critic
-weights), one fused Adam steps every parameter, and the Polyak update is a single foreach lerp.
+This file is the reference: the losses, back-propagated by autograd (``SACConfig.update_impl="autograd"``).
+The default, ``"fused"``, is sac_fused.py: the same update with hand-written gradients (equal to this one
+to float rounding, tests/test_sac_fused.py), faster. Both: the two critics are one ensemble evaluated with
+batched matmuls, all losses are summed (they touch disjoint parameters because the actor loss reads
+detached critic weights), one fused Adam steps every parameter, and the Polyak update is one foreach lerp.
 
 The update knows nothing about replay: it takes a Batch and returns one |TD| per sample,
 summed over both critics (the paper's Eq. 9), for whoever wants priorities.
