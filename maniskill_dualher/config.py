@@ -48,6 +48,24 @@ def check_device(device: str, what: Optional[str] = None) -> None:
         raise ConfigError(f"unsupported device {device!r} (use cpu or cuda)")
 
 
+# How an update is computed, not what it computes (fused and autograd, compiled or not, agree to float
+# rounding: tests/test_sac_fused.py; so do torch's fp32 precision settings: tests/test_sac.py). A run may
+# resume under other values of these; its config.json then records the current ones.
+IMPLEMENTATION_ONLY = ("update_impl", "compile")
+FP32_LEVEL_PRECISIONS = ("highest", "high", "medium")
+
+
+def run_identity(cfg: dict) -> dict:
+    """A RunConfig dict (as in a run's config.json) without the settings that do not change its results."""
+    out = json.loads(json.dumps(cfg))
+    sac = out.get("sac", {})
+    for k in IMPLEMENTATION_ONLY:
+        sac.pop(k, None)
+    if sac.get("matmul_precision") in FP32_LEVEL_PRECISIONS:
+        sac["matmul_precision"] = "fp32"
+    return out
+
+
 class ConfigError(ValueError):
     """A bad configuration value; the message is one line naming it."""
 

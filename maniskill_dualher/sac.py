@@ -92,6 +92,7 @@ class EnsembleMLP(nn.Module):
 
 class Actor(nn.Module):
     """Tanh-squashed Gaussian policy with actions in [-1, 1]^A."""
+    log_std_range = (LOG_STD_MIN, LOG_STD_MAX)  # the clamp of log std (read by sac_fused.py too)
 
     def __init__(self, obs_dim: int, act_dim: int, hidden: Tuple[int, ...]):
         super().__init__()

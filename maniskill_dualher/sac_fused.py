@@ -27,7 +27,6 @@ import torch.nn.functional as F
 
 if TYPE_CHECKING:  # pragma: no cover
     from .replay.base import Batch
-    from .sac import SAC
 
 _HALF_LOG_2PI = 0.5 * math.log(2 * math.pi)
 
@@ -146,10 +145,9 @@ class FusedUpdate:
     ``compute`` is pure: tensors in, gradients and outputs out (no ``.grad`` written, no optimizer), so that
     ``SACConfig.compile`` can hand it to ``torch.compile``; ``__call__`` applies its result."""
 
-    def __init__(self, sac: "SAC"):
-        from .sac import LOG_STD_MAX, LOG_STD_MIN
+    def __init__(self, sac: nn.Module):  # a sac.SAC (not imported: sac.py imports this module)
         self.sac = sac
-        self.log_std_range = (LOG_STD_MIN, LOG_STD_MAX)
+        self.log_std_range = sac.actor.log_std_range
         low = sac.cfg.matmul_precision == "bf16"
         self.actor = Layers(sac.actor.net, low)
         self.q = Layers(sac.q, low)

@@ -27,7 +27,7 @@ from typing import Dict, List, Optional
 import numpy as np
 import torch
 
-from .config import ConfigError, ReplayConfig, RunConfig, SACConfig, field_docs, parse_ratio
+from .config import ConfigError, ReplayConfig, RunConfig, SACConfig, field_docs, parse_ratio, run_identity
 from . import rundir
 from .fileio import atomic_torch_save, atomic_write_text
 from .rundir import CHECKPOINT
@@ -116,7 +116,7 @@ class Trainer:
                 old = json.loads(cfg_path.read_text())
             except json.JSONDecodeError:
                 raise ConfigError(f"{cfg_path} is not valid JSON") from None
-            new = json.loads(self.cfg.to_json())
+            old, new = run_identity(old), run_identity(json.loads(self.cfg.to_json()))
             if old != new:
                 keys = ", ".join(_differing_keys(old, new)) or "?"
                 raise ConfigError(f"{self.out} holds a run of a different config (differs in: {keys}); use another --out")

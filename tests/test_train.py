@@ -70,9 +70,25 @@ def test_other_config_in_same_folder_is_refused(tmp_path):
     with pytest.raises(ConfigError, match=r"different config \(differs in: control_mode\)"):
         run_training(tiny(steps=100, control_mode="pd_ee_delta_pos"), tmp_path / "r", show_progress=False)
     other = tiny(steps=100)
-    other.sac.matmul_precision = "highest"
+    other.sac.matmul_precision = "bf16"
     with pytest.raises(ConfigError, match=r"differs in: sac.matmul_precision\)"):
         run_training(other, tmp_path / "r", show_progress=False)
+
+
+def test_a_run_resumes_under_another_update_implementation(tmp_path):
+    """update_impl, compile and torch's fp32 precision settings change how an update is computed, not its
+    values: a run begun by the autograd update at "medium" (its config.json from before these settings
+    existed) resumes under the fused update at "highest" and finishes."""
+    old = tiny(steps=100)
+    old.sac.update_impl, old.sac.matmul_precision = "autograd", "medium"
+    run_training(old, tmp_path / "r", show_progress=False, stop_at=50)
+    saved = json.loads((tmp_path / "r" / "config.json").read_text())
+    for k in ("update_impl", "compile"):
+        del saved["sac"][k]
+    (tmp_path / "r" / "config.json").write_text(json.dumps(saved))
+    final = run_training(tiny(steps=100), tmp_path / "r", show_progress=False)
+    assert final["env_steps"] == 100
+    assert json.loads((tmp_path / "r" / "config.json").read_text())["sac"]["update_impl"] == "fused"
 
 
 def test_transfer_init_from_loads_networks(tmp_path):
