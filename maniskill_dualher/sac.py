@@ -32,6 +32,7 @@ import torch.nn.functional as F
 
 from .config import SACConfig
 from .replay.base import Batch
+from .sac_fused import FusedUpdate
 
 LOG_STD_MIN, LOG_STD_MAX = -5.0, 2.0
 
@@ -178,7 +179,6 @@ class SAC(nn.Module):
         with matmul_precision(self.cfg.matmul_precision):
             if self.cfg.update_impl == "fused":
                 if self._fused is None:
-                    from .sac_fused import FusedUpdate
                     self._fused = FusedUpdate(self)
                 return self._fused(batch, actor_batch, want_logs)
             return self._update(batch, actor_batch, want_logs)
