@@ -28,7 +28,9 @@ DUAL_MODES = ("choose", "split")
 UPDATE_SCHEDULES = ("step", "episode")
 SUCCESS_BUFFER_MODES = ("transitions", "episodes")
 SIM_BACKENDS = ("physx_cpu", "physx_cuda")
-OUR_TASKS = ("ReachTarget-v1", "CloseBox-v1", "CloseMicrowave-v1")
+# The one task list: presets, the transfer chain, claims and tables read it (a new task is added here and in tasks/)
+TASKS = ("ReachTarget-v1", "CloseBox-v1", "CloseMicrowave-v1")
+OUR_TASKS = TASKS
 
 
 def check_device(device: str, what: Optional[str] = None) -> None:
@@ -58,6 +60,7 @@ FP32_LEVEL_PRECISIONS = ("highest", "high", "medium")
 def run_identity(cfg: dict) -> dict:
     """A RunConfig dict (as in a run's config.json) without the settings that do not change its results."""
     out = json.loads(json.dumps(cfg))
+    out.pop("gpu_memory_scale", None)  # GPU buffer sizes: how a run is simulated, not what (runs made before it)
     sac = out.get("sac", {})
     for k in IMPLEMENTATION_ONLY:
         sac.pop(k, None)
@@ -126,6 +129,9 @@ class ReplayConfig:
     # transitions, one per successful episode when success ends it; "episodes" (section 4.2: E "only contains
     # successful trajectories"): every real transition of a successful episode
     success_buffer: str = "transitions"
+    # dual buffer, transfer: keep E's rows from the source stages when a stage starts from another run's replay
+    # (off: E starts empty, so it holds only this task's successes; R is carried either way)
+    carry_success_buffer: bool = True
 
 
 @dataclass
@@ -142,9 +148,15 @@ class RunConfig:
     sim_backend: str = "physx_cpu"        # physx_cpu (one env per process) or physx_cuda (GPU, num_envs > 1)
     reward_mode: str = "sparse"           # ManiSkill reward mode; HER methods need sparse (the paper's +1 on success)
     num_envs: int = 1                     # parallel envs (CPU simulation: 1)
+    # GPU simulation (physx_cuda) only: multiply every PhysX GPU buffer size in ManiSkill's GPUMemoryConfig
+    # (rigid contacts and patches, found/lost pairs, heap, temp buffer, collision stack), each rounded up to a
+    # power of two, by this factor (> 0); raise it (2, 4) when PhysX prints a buffer overflow on many envs
+    gpu_memory_scale: float = 1.0
     eval_every: int = 5_000               # env steps between evaluations
     eval_episodes: int = 10               # evaluation episodes, fixed seeds shared by every run, deterministic policy
     checkpoint_every: int = 5_000         # env steps between checkpoints (also at the end; resume granularity)
+    # evaluate once before any training (env step 0): the prior's zero-shot score in a transfer stage
+    eval_at_start: bool = False
     torch_threads: int = 1                # torch intra-op threads of this run
     device: str = "cpu"                   # torch device of networks and batches (cpu, cuda, cuda:0)
     sac: SACConfig = field(default_factory=SACConfig)
@@ -169,6 +181,9 @@ class RunConfig:
             raise ConfigError(f"total_steps must be > 0, got {self.total_steps}")
         if self.num_envs < 1:
             raise ConfigError(f"num_envs must be >= 1, got {self.num_envs}")
+        g = self.gpu_memory_scale
+        if not isinstance(g, (int, float)) or isinstance(g, bool) or not math.isfinite(g) or g <= 0:
+            raise ConfigError(f"gpu_memory_scale must be a finite number > 0, got {g!r}")
         for name, v in (("lr", s.lr), ("gamma", s.gamma), ("alpha", s.alpha), ("tau", s.tau),
                         ("updates_per_step", s.updates_per_step), ("updates_per_episode", s.updates_per_episode),
                         ("priority_exponent", r.priority_exponent), ("is_exponent", r.is_exponent),

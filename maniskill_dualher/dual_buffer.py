@@ -71,6 +71,10 @@ class DualBufferReplay(BufferMethod):
         if ok.any():
             self.E.add(_select(real, ok))
 
+    def on_transfer(self) -> None:
+        if not self.rcfg.carry_success_buffer:  # E holds only the target task's own successes
+            self._buffer("E", prioritized=False)
+
     def add_demo_episode(self, ep: Episode) -> None:
         """Seed E (only) with a scripted-solver episode's successes, chosen as for real episodes."""
         self._check_goal_episode(ep)

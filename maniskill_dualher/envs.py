@@ -9,6 +9,7 @@ dict goal envs are flattened to it), and ``split`` cuts it apart. Actions go in 
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Optional, Tuple
 
@@ -120,6 +121,8 @@ class BatchEnv:
             kw["control_mode"] = cfg.control_mode
         if cfg.max_episode_steps is not None:
             kw["max_episode_steps"] = cfg.max_episode_steps
+        if cfg.sim_backend == "physx_cuda" and cfg.gpu_memory_scale != 1.0:
+            kw["sim_config"] = {"gpu_memory_config": gpu_memory_config(cfg.gpu_memory_scale)}
         try:
             return gym.make(cfg.env_id, **kw)
         except (ValueError, AssertionError, KeyError, NotImplementedError) as e:
@@ -210,6 +213,13 @@ class BatchEnv:
 
     def close(self) -> None:
         self.env.close()
+
+
+def gpu_memory_config(scale: float) -> dict:
+    """ManiSkill's GPUMemoryConfig defaults (PhysX GPU buffer sizes) times ``scale``, each rounded up to a power
+    of two (PhysX wants a power-of-two heap; the defaults all are): ``sim_config={"gpu_memory_config": ...}``."""
+    from mani_skill.utils.structs.types import GPUMemoryConfig
+    return {k: 1 << max(0, math.ceil(math.log2(max(1.0, v * scale)))) for k, v in GPUMemoryConfig().dict().items()}
 
 
 def _is_maniskill(env_id: str) -> bool:

@@ -6,8 +6,14 @@ A run folder (written by ``train.py``; a transfer stage also by ``protocol.py``)
     metrics.csv     one row per evaluation (METRIC_COLUMNS first)
     checkpoint.pt   networks, optimizer, replay (until finished, or kept for a successor stage), RNG
     lineage.json    where its networks (and replay) came from, if transferred
-    stage.json      its place in a transfer chain, or the scratch control ("protocol": "transfer"|"scratch")
+    stage.json      its place in a transfer chain (index, parent folder, carry flag)
+    cell.json       written by the sweep: the cells it serves (experiment, arm, task, chain, method, variant,
+                    seed, stage, role, parent); the report groups by these and infers nothing
     done.json       the final metrics row, once finished
+    policy.pt       the actor at the latest evaluation (policy.py: load_policy; evaluate.py)
+    policy_best.pt  the actor at the best evaluation success so far (a tie keeps the earlier)
+    provenance.json where and with what code it ran: {"starts": [one provenance() per process start]}
+    error.txt       the traceback of the last failed attempt (a later resume may still finish it)
     events.out.*    TensorBoard
 
 A sweep folder holds ``sweep.json`` (the definition: which runs exist) and ``runs/...``; the report
@@ -30,7 +36,12 @@ METRICS = "metrics.csv"
 CHECKPOINT = "checkpoint.pt"
 ORIGIN = "lineage.json"
 STAGE = "stage.json"
+CELL = "cell.json"
 DONE = "done.json"
+POLICY = "policy.pt"
+POLICY_BEST = "policy_best.pt"
+PROVENANCE = "provenance.json"
+ERROR = "error.txt"
 SWEEP = "sweep.json"
 RUNS_DIR = "runs"
 

@@ -35,6 +35,8 @@ from .envs import EVAL_SEED_BASE, BatchEnv, make_env, train_episode_seed
 from .replay.base import Episode
 from .cli import OneLineParser
 from .sac import SAC
+from .policy import save_policy
+from .provenance import record_start
 
 DEMO_SEED_BASE = 2_000_000_000
 
@@ -96,6 +98,7 @@ class Trainer:
         self.demo_env_steps = 0
         self.started = 0              # training episodes started (their reset seeds)
         self.episode_steps_total = 0  # env steps of finished training episodes (mean episode length)
+        self.best_eval_success = -1.0  # best evaluation success so far (policy_best.pt); -1: none yet
         self.rows: List[dict] = []
         self.resumed = False
 
@@ -108,6 +111,7 @@ class Trainer:
         atomic_write_text(self.out / rundir.CONFIG, cfg.to_json() + "\n")
         rundir.write_json(self.out / rundir.ORIGIN, {"init_from": str(init_from) if init_from else None,
                                                      "carry_replay": bool(carry_replay)})
+        record_start(self.out)  # provenance.json: code, libraries, machine of this process start
 
     def _check_out_dir(self) -> None:
         cfg_path = self.out / rundir.CONFIG
@@ -132,6 +136,7 @@ class Trainer:
                 raise ConfigError("init_from checkpoint holds no replay buffers (its run did not keep them); "
                                   "rerun it, or transfer without carrying replay")
             self.method.load_state_dict(state["method"])
+            self.method.on_transfer()
             self.method.reseed(np.random.default_rng([self.cfg.seed, 1]))  # keep this run's own sampling stream
 
     # ------------------------------------------------------------ checkpoint
@@ -143,7 +148,8 @@ class Trainer:
             "counters": dict(env_steps=self.env_steps, episodes=self.episodes, successes=self.successes,
                              updates=self.updates, update_credit=self.update_credit,
                              wall_time=self.wall_time, demo_env_steps=self.demo_env_steps,
-                             started=self.started, episode_steps_total=self.episode_steps_total),
+                             started=self.started, episode_steps_total=self.episode_steps_total,
+                             best_eval_success=self.best_eval_success),
             "rows": self.rows,
             "rng": self.rng.bit_generator.state,
             "torch_rng": torch.get_rng_state(),
@@ -259,8 +265,12 @@ class Trainer:
         from torch.utils.tensorboard import SummaryWriter
         from tqdm import tqdm
         self.tb = SummaryWriter(str(self.out), purge_step=self.env_steps if self.resumed else None)
+        if not self.resumed:
+            self.tb.add_text("config", "```\n" + cfg.to_json() + "\n```", 0)
         if not self.resumed and self.env_steps == 0:
             self._collect_demos()
+            if cfg.eval_at_start:  # the starting policy's score (a transfer stage: the prior, zero-shot)
+                self._eval_row()
         next_eval = (self.env_steps // cfg.eval_every + 1) * cfg.eval_every
         next_ckpt = (self.env_steps // cfg.checkpoint_every + 1) * cfg.checkpoint_every
         bar = tqdm(total=cfg.total_steps, initial=self.env_steps, disable=not self.show_progress,
@@ -391,7 +401,24 @@ class Trainer:
             if k != "env_steps" and isinstance(v, (int, float)) and not k.startswith("replay_"):
                 self.tb.add_scalar(f"charts/{k}", v, self.env_steps)
         rundir.write_metrics(self.out, self.rows)
+        self._train_charts(row)
+        self._save_policies(row["eval_success_rate"])
         return row
+
+    def _train_charts(self, row: dict) -> None:
+        """TensorBoard only (not metrics.csv): training success rate and env steps/s since the last evaluation."""
+        self.tb.add_scalar("charts/train_success_rate", self.successes / max(1, self.episodes), self.env_steps)
+        prev = self.rows[-2] if len(self.rows) > 1 else {"env_steps": 0, "wall_time_s": 0.0}
+        dt = float(row["wall_time_s"]) - float(prev["wall_time_s"])
+        if dt > 0:
+            self.tb.add_scalar("charts/env_steps_per_s", (self.env_steps - prev["env_steps"]) / dt, self.env_steps)
+
+    def _save_policies(self, success: float) -> None:
+        """policy.pt at every evaluation; policy_best.pt when it beats every earlier one (a tie keeps the earlier)."""
+        save_policy(self, self.out / rundir.POLICY, eval_success=success)
+        if success > self.best_eval_success:
+            self.best_eval_success = float(success)
+            save_policy(self, self.out / rundir.POLICY_BEST, eval_success=success)
 
 
 class TrainingDiverged(ConfigError):
@@ -443,12 +470,31 @@ def run_training(cfg: RunConfig, out_dir, init_from=None, carry_replay: bool = F
     (None if ``stop_at`` paused it early)."""
     if rundir.is_done(out_dir):
         return rundir.read_done(out_dir)["final"]
-    trainer = Trainer(cfg, out_dir, init_from=init_from, carry_replay=carry_replay, show_progress=show_progress,
-                      keep_replay=keep_replay)
+    trainer = None
     try:
+        trainer = Trainer(cfg, out_dir, init_from=init_from, carry_replay=carry_replay,
+                          show_progress=show_progress, keep_replay=keep_replay)
         return trainer.run(stop_at=stop_at)
+    except Exception as e:  # not KeyboardInterrupt: a kill is no failure, the checkpoint resumes it
+        # a refused config (ConfigError before the Trainer exists) is bad input, not a failed run: no file
+        # in a folder that may hold another run; everything else leaves its traceback in the run folder
+        if trainer is not None or not isinstance(e, ConfigError):
+            _write_error(Path(out_dir))
+        raise
     finally:
-        trainer.env.close()
+        if trainer is not None:
+            trainer.env.close()
+
+
+def _write_error(out: Path) -> None:
+    """``error.txt``: UTC time and the full traceback of the exception being handled (atomic)."""
+    import datetime
+    import traceback
+    stamp = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
+    try:
+        atomic_write_text(out / rundir.ERROR, f"failed at {stamp} (UTC)\n{traceback.format_exc()}")
+    except OSError:
+        pass  # an unwritable folder must not hide the original exception
 
 
 # --------------------------------------------------------------------------- CLI

@@ -92,6 +92,9 @@ class BufferMethod:
                 out["max_priority" if k == "R" else f"{k}_max_priority"] = float(b.sampler.max_priority)
         return out
 
+    def on_transfer(self) -> None:
+        """Called once after another run's replay was loaded into this one (transfer); default: keep it all."""
+
     def reseed(self, rng: np.random.Generator) -> None:
         """Use a new sampling stream (e.g. after loading another run's replay for transfer)."""
         self.rng = rng

@@ -11,7 +11,7 @@ the hash covering the configs of stages 0..i and the carry flag: a killed chain
 resumes at the stage in flight, and two chains that share their first stages (the
 sampling-ratio study varies only the adaptation stage) can share those folders.
 Each stage folder also gets ``stage.json`` (its position in the chain and its
-parent), which is how the report tells transfer stages from single-task runs.
+parent); which experiment and arm a run belongs to is the sweep's ``cell.json``.
 """
 from __future__ import annotations
 
@@ -22,15 +22,13 @@ from pathlib import Path
 from typing import List, Sequence, Union
 
 from maniskill_dualher import rundir
-from maniskill_dualher.config import ConfigError, RunConfig
+from maniskill_dualher.config import TASKS, ConfigError, RunConfig
+from maniskill_dualher.experiment.presets import HER_K_MULTITASK, HER_K_SINGLE  # noqa: F401 (re-exported)
 from maniskill_dualher.methods import method_spec
 
 PathLike = Union[str, Path]
 
-TASKS = ("ReachTarget-v1", "CloseBox-v1", "CloseMicrowave-v1")
 TRANSFER_ORDER = TASKS                  # paper: ReachTarget -> CloseBox -> CloseMicrowave
-HER_K_SINGLE = 4                        # paper 4.2.1
-HER_K_MULTITASK = 8                     # paper 4.2.2: "k ... was increased from 4 to 8"
 
 
 # --------------------------------------------------------------------------- small shared helpers

@@ -53,8 +53,8 @@ def update_seconds(cfg, obs_dim: int = 43, act_dim: int = 8, iters: int = 30) ->
         return _UPDATE_S[key]
     import torch
 
-    from .replay.base import Batch
-    from .sac import SAC
+    from ..replay.base import Batch
+    from ..sac import SAC
 
     threads = torch.get_num_threads()
     torch.set_num_threads(1)

@@ -1,0 +1,1 @@
+"""Analysis: loading runs, statistics, claims, plots; no torch, no simulator."""

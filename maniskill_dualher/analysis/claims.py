@@ -1,0 +1,148 @@
+"""Claims as data: the paper's (a)-(h) and our ablations' questions, each "side A > side B" on one metric.
+
+A side names its cell explicitly: experiment, arm, method, task and role (``runs.CELL_KEYS``); its values
+are one score per seed from ``scores.csv``. ``claim_rows`` decides each claim with ``stats.compare``.
+
+Add a claim: one ``Claim(...)`` in ``CLAIMS``; it is "not measured" until a sweep runs both sides.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Dict, List, Optional, Sequence
+
+import numpy as np
+
+from ..config import TASKS
+from . import stats
+from .paper import PAPER_TARGET
+
+RATE_MARGIN = 0.1      # success rates and sparse returns per episode (in [0, 1]): 10 percentage points
+COUNT_MARGIN = 0.1     # counts and env steps: 10% of the larger side's mean
+
+
+@dataclass(frozen=True)
+class Side:
+    experiment: str
+    arm: str
+    method: str
+    task: str = PAPER_TARGET
+    role: str = "adapt"            # "adapt" (a chain's last stage, or scratch), "source" or "single"
+
+    def label(self) -> str:
+        return f"{self.method} {self.experiment}/{self.arm}"
+
+
+@dataclass(frozen=True)
+class Claim:
+    key: str
+    text: str                      # "A > B on ...": the paper's direction, or the ablation's question
+    paper: str                     # what the paper reports ("" for our ablations)
+    metric: str                    # a runs.METRICS key
+    a: Side
+    b: Side
+    relative_margin: bool = False  # margin = 10% of the larger mean (counts) instead of an absolute 0.1
+    group: str = "paper"           # "paper" or "ablation"
+
+
+def _t(method: str, arm: str = "paper", experiment: str = "transfer") -> Side:
+    return Side(experiment, arm, method)
+
+
+DUAL, HER = "dual_buffer", "sac_her_per"
+N = "successful_train_episodes"
+R = "mean_eval_return"
+S = "mean_eval_success_rate"
+
+CLAIMS: List[Claim] = [
+    # ------------------------------------------------------------------ the paper's claims
+    Claim("a", f"dual_buffer > sac_her_per: successful {PAPER_TARGET} adaptation episodes", "Table 5: 250 vs <45",
+          N, _t(DUAL), _t(HER), relative_margin=True),
+    Claim("b", f"dual_buffer > sac_her_per: {PAPER_TARGET} adaptation evaluation return (mean over the curve)",
+          "Fig. 5: dual buffer's curve above", R, _t(DUAL), _t(HER)),
+    Claim("c", f"ratio 0.6/0.4 > 0.5/0.5: successful {PAPER_TARGET} adaptation episodes", "Table 4: 250 vs 154",
+          N, Side("ratios", "0.6/0.4", DUAL), Side("ratios", "0.5/0.5", DUAL), relative_margin=True),
+    Claim("d", f"ratio 0.5/0.5 > 0.7/0.3: successful {PAPER_TARGET} adaptation episodes", "Table 4: 154 vs <75",
+          N, Side("ratios", "0.5/0.5", DUAL), Side("ratios", "0.7/0.3", DUAL), relative_margin=True),
+    *[Claim(key, f"dual_buffer > sac: {task} single-task evaluation return (mean over the curve)",
+            "Fig. 4: dual buffer's curve above SAC's", R, Side("single", "paper", DUAL, task, "single"),
+            Side("single", "paper", "sac", task, "single"))
+      for key, task in (("e", "ReachTarget-v1"), ("f", "CloseBox-v1"), ("g", "CloseMicrowave-v1")) if task in TASKS],
+    Claim("h", f"transfer > from scratch: dual_buffer's successful {PAPER_TARGET} episodes in the adaptation budget",
+          "assumed (section 3.1), never tested", N, _t(DUAL), Side("scratch", "paper", DUAL), relative_margin=True),
+    Claim("h'", f"transfer > from scratch: sac_her_per's successful {PAPER_TARGET} episodes in the adaptation "
+                "budget", "not in the paper", N, _t(HER), Side("scratch", "paper", HER), relative_margin=True),
+    # ------------------------------------------------------------------ why the dual buffer loses (ablations)
+    Claim("prior", "the priors differ: sac_her_per's prior > dual_buffer's, evaluated on the target before "
+                   "adaptation (zero-shot)", "", "step0_eval_success_rate", _t(HER), _t(DUAL), group="ablation"),
+    Claim("e_off", "same prior, E off in adaptation (ratio 1/0) > the paper's dual buffer (0.6/0.4): successful "
+                   "episodes", "", N, Side("e_share", "e_off", DUAL), _t(DUAL), relative_margin=True,
+          group="ablation"),
+    Claim("e_off_vs_her", "the dual buffer's prior with E off > sac_her_per: successful episodes (what is left "
+                          "of the gap without E)", "", N, Side("e_share", "e_off", DUAL), _t(HER),
+          relative_margin=True, group="ablation"),
+    Claim("split", "E's share inside every batch (split) > whole batches from E (choose, Alg. 1): successful "
+                   "episodes", "", N, Side("e_share", "split", DUAL), _t(DUAL), relative_margin=True,
+          group="ablation"),
+    Claim("r_matched", "as many R updates as sac_her_per (1/0.6 updates per step) > the paper's dual buffer: "
+                       "successful episodes", "", N, Side("e_share", "r_matched", DUAL), _t(DUAL),
+          relative_margin=True, group="ablation"),
+    Claim("e_target", "E holding only target-task successes > E carried from the source tasks: successful "
+                      "episodes", "", N, Side("e_content", "e_target_only", DUAL), _t(DUAL), relative_margin=True,
+          group="ablation"),
+    Claim("e_episodes", "E of whole successful episodes (section 4.2) > E of reward-1 transitions (Alg. 1): "
+                        "successful episodes", "", N, Side("e_content", "e_episodes", DUAL), _t(DUAL),
+          relative_margin=True, group="ablation"),
+    Claim("warm_dual", "warm start (no random steps) > the paper's adaptation, dual_buffer: mean evaluation "
+                       "success", "", S, Side("warm_start", "warm", DUAL), _t(DUAL), group="ablation"),
+    Claim("warm_her", "warm start > the paper's adaptation, sac_her_per: mean evaluation success", "", S,
+          Side("warm_start", "warm", HER), _t(HER), group="ablation"),
+    Claim("warm_a", "with a warm start, dual_buffer > sac_her_per: successful episodes (claim a without the "
+                    "collapse)", "", N, Side("warm_start", "warm", DUAL), Side("warm_start", "warm", HER),
+          relative_margin=True, group="ablation"),
+    Claim("warm_h", "with a warm start, transfer > from scratch, dual_buffer: successful episodes (claim h "
+                    "without the collapse)", "", N, Side("warm_start", "warm", DUAL), Side("scratch", "paper", DUAL),
+          relative_margin=True, group="ablation"),
+    Claim("warm_h'", "with a warm start, transfer > from scratch, sac_her_per: successful episodes", "", N,
+          Side("warm_start", "warm", HER), Side("scratch", "paper", HER), relative_margin=True, group="ablation"),
+    Claim("her_episode_a", "with Algorithm 1's HER ('episode') in every stage, dual_buffer > sac_her_per: "
+                           "successful episodes", "", N, Side("her_episode", "her_episode", DUAL),
+          Side("her_episode", "her_episode", HER), relative_margin=True, group="ablation"),
+    Claim("long_a", "with a 4x adaptation budget, dual_buffer > sac_her_per: successful episodes", "", N,
+          Side("regime", "long", DUAL), Side("regime", "long", HER), relative_margin=True, group="ablation"),
+]
+
+CLAIM_COLUMNS = ["claim", "group", "statement", "paper", "metric", "side_a", "side_b", "n_a", "n_b", "mean_a",
+                 "mean_b", "diff", "diff_ci95_low", "diff_ci95_high", "welch_ci95_low", "welch_ci95_high",
+                 "prob_improvement", "margin", "verdict", "seeds_to_decide"]
+
+
+def side_values(scores: Sequence[Dict[str, str]], side: Side, metric: str) -> List[float]:
+    """One value per seed (ascending seed) of a side's cell and metric."""
+    by_seed: Dict[int, float] = {}
+    for r in scores:
+        if (r["metric"] == metric and r["experiment"] == side.experiment and r["arm"] == side.arm
+                and r["method"] == side.method and r["task"] == side.task and r["role"] == side.role):
+            by_seed.setdefault(int(r["seed"]), float(r["value"]))
+    return [by_seed[s] for s in sorted(by_seed)]
+
+
+def claim_rows(scores: Sequence[Dict[str, str]], resamples: int = 10_000,
+               claims: Optional[Sequence[Claim]] = None) -> List[dict]:
+    rows = []
+    for c in CLAIMS if claims is None else claims:
+        a, b = side_values(scores, c.a, c.metric), side_values(scores, c.b, c.metric)
+        row = {"claim": c.key, "group": c.group, "statement": c.text, "paper": c.paper, "metric": c.metric,
+               "side_a": c.a.label(), "side_b": c.b.label()}
+        if not a or not b:
+            rows.append({**row, "verdict": "not measured (runs missing)"})
+            continue
+        margin = COUNT_MARGIN * max(abs(np.mean(a)), abs(np.mean(b)), 1.0) if c.relative_margin else RATE_MARGIN
+        cmp = stats.compare(a, b, margin, resamples)
+        rows.append({**row, "n_a": cmp.n_a, "n_b": cmp.n_b, "mean_a": cmp.mean_a, "mean_b": cmp.mean_b,
+                     "diff": cmp.diff, "diff_ci95_low": cmp.ci_low, "diff_ci95_high": cmp.ci_high,
+                     "welch_ci95_low": getattr(cmp, "welch_low", math.nan),
+                     "welch_ci95_high": getattr(cmp, "welch_high", math.nan),
+                     "prob_improvement": cmp.prob_improvement, "margin": margin, "verdict": cmp.verdict_text(),
+                     "seeds_to_decide": cmp.seeds_to_decide})
+    return rows

@@ -1,0 +1,224 @@
+"""The report: scores.csv and curves.csv from run folders, then every table, claim, figure and summary.md
+from those two files alone.
+
+    python -m maniskill_dualher.report runs/quick                       # a sweep folder with its runs
+    python -m maniskill_dualher.report results/reference                # a committed folder: from its scores
+    python -m maniskill_dualher.report runs/quick --reference results/reference   # overlay the reference
+
+A folder with finished runs gets fresh ``scores.csv``/``curves.csv``; a folder without run folders is
+rebuilt from the ones it holds (byte-identical tables and claims: no wall time, seeded statistics). The
+report never replaces scores with fewer: where the folder's ``scores.csv`` names runs it cannot find, or
+where there is nothing to build from, it refuses with one line and exit code 2, writing nothing.
+"""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Dict, List, Optional, Sequence
+
+from .. import rundir
+from ..cli import OneLineParser
+from ..config import ConfigError
+from ..fileio import atomic_write_text, csv_text, fmt
+from . import claims as claims_mod
+from . import plots, stats
+from .paper import PAPER_ADAPT_BUDGET, PAPER_ADAPT_STEPS, PAPER_TABLE3
+from .runs import (CURVE_COLUMNS, METRICS, SCORE_COLUMNS, Run, curve_rows, load_runs, read_rows, rows_text,
+                   score_rows)
+from .tables import TABLE_COLUMNS, build_tables
+
+SCORES, CURVES = "scores.csv", "curves.csv"
+DEFAULT_EXPERIMENTS = ("single", "transfer", "ratios", "scratch")
+
+
+def _default_experiments() -> Sequence[str]:
+    try:  # the registry is plain data (no torch); fall back to the paper's four if it is not importable
+        from ..experiment.registry import default_experiments
+        return default_experiments()
+    except ImportError:
+        return DEFAULT_EXPERIMENTS
+
+
+def hyperparameter_rows(runs: List[Run]) -> List[dict]:
+    """The paper's Table 3 beside the values our runs used, per role (single-task, source stage, adaptation)."""
+    by_role: Dict[str, list] = {"single": [], "source": [], "adapt": []}
+    for r in sorted(runs, key=lambda r: r.rel):
+        for role in {c["role"] for c in r.cells}:
+            by_role.setdefault(role, []).append((r, min(c["stage"] for c in r.cells if c["role"] == role)))
+
+    def values(items, get):
+        seen: List[str] = []
+        for r, stage in items:
+            v = get(r.cfg, stage)
+            if v is not None and str(v) not in seen:
+                seen.append(str(v))
+        return "; ".join(seen)
+
+    def alpha(c, stage):
+        learned = "learned" if c.sac.resolved_learn_alpha() else "fixed"
+        return f"{c.sac.alpha} ({learned})" if stage == 0 else f"carried from the previous stage ({learned})"
+
+    table = [(name, paper, (lambda c, s, g=get: g(c))) for name, paper, get in PAPER_TABLE3]
+    table = [(n, p, alpha if n.startswith("SAC entropy") else g) for n, p, g in table]
+    table += [
+        ("networks at the start", "the previous stage's (transfer)",
+         lambda c, s: "random init" if s == 0 else "the previous stage's final networks"),
+        ("optimizer at the start", "not stated", lambda c, s: "fresh Adam" if s == 0 else "fresh Adam (not carried)"),
+        ("replay at the start", "not stated", lambda c, s: "empty" if s == 0 else "the previous stage's, carried"),
+        ("dual buffer: E carried into this stage", "not stated",
+         lambda c, s: None if c.method != "dual_buffer" or s == 0 else c.replay.carry_success_buffer),
+        ("learning starts (env steps)", "not stated", lambda c, s: c.sac.learning_starts),
+        ("evaluation at env step 0", "no", lambda c, s: c.eval_at_start),
+    ]
+    return [{"hyperparameter": name, "paper": paper,
+             "ours_single_task": values(by_role.get("single", []), get),
+             "ours_source_stages": values(by_role.get("source", []), get),
+             "ours_adaptation": values(by_role.get("adapt", []), get)} for name, paper, get in table]
+
+
+def _g(v) -> str:
+    return fmt(float(f"{v:.3g}")) if isinstance(v, float) and v == v else fmt(v)
+
+
+def claims_md(rows: List[dict]) -> List[str]:
+    lines = ["| | claim (A > B) | paper | A vs B (mean over seeds, n) | A - B [95% CI] | P(A > B) | verdict |",
+             "|---|---|---|---|---|---|---|"]
+    for r in rows:
+        if "diff" not in r:
+            lines.append(f"| {r['claim']} | {r['statement']} | {r['paper']} | | | | {r['verdict']} |")
+            continue
+        lines.append(f"| {r['claim']} | {r['statement']} | {r['paper']} | {_g(r['mean_a'])} vs {_g(r['mean_b'])} "
+                     f"(n = {r['n_a']}, {r['n_b']}) | {_g(r['diff'])} [{_g(r['diff_ci95_low'])}, "
+                     f"{_g(r['diff_ci95_high'])}] | {r['prob_improvement']:.2f} | **{r['verdict']}** |")
+    return lines
+
+
+def md_table(rows: List[dict], columns: List[str]) -> str:
+    if not rows:
+        return "_no finished runs_\n"
+    lines = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
+    lines += ["| " + " | ".join(fmt(r.get(c)) for c in columns) + " |" for r in rows]
+    return "\n".join(lines) + "\n"
+
+
+def summary_md(folder: Path, scores, tables, claims, figures: List[str], n_runs: int, unfinished: List[str]) -> str:
+    sweep = rundir.read_sweep(folder) or {}
+    runs = sorted({r["run"] for r in scores})
+    s = [f"# Results: {folder.name}" + (f" (preset {sweep['preset']})" if sweep.get("preset") else ""), ""]
+    s.append(f"{len(runs)} finished runs in `{SCORES}`"
+             + (f"; {len(unfinished)} runs unfinished (not counted)" if unfinished else "") + ".")
+    if sweep.get("budgets"):
+        b = sweep["budgets"]
+        s.append(f"Budgets (env steps): single-task {b['single']}; source stage {b['source']}; adaptation "
+                 f"{b['adapt']} (paper's adaptation: {PAPER_ADAPT_BUDGET}; ours is "
+                 f"{100 * max(b['adapt'].values()) / PAPER_ADAPT_STEPS:.2g}% of it). Our tasks are ManiSkill3 "
+                 "re-creations of the RLBench ones: compare directions, not absolute counts.")
+    if sweep.get("settings"):
+        s.append(f"Settings given to this sweep: `{' '.join(sweep['settings'])}`.")
+    s += ["", "Every table, claim and figure here is computed from `scores.csv` (one value per run and metric) and "
+          "`curves.csv` (one row per evaluation): `python -m maniskill_dualher.report <this folder>` rebuilds them "
+          "without the run folders.", ""]
+    decided = [r for r in claims if "diff" in r and not r["verdict"].startswith(("inconclusive", "not measured"))]
+    tested = [r for r in claims if "diff" in r]
+    s += ["## Verdicts (`claims.csv`)", "",
+          "Each claim is 'A > B' (the paper's direction, or the ablation's question). Each side is one score "
+          "per seed; the difference of means A - B gets a 95% interval (" + getattr(stats, "CI_METHOD", "bootstrap")
+          + ", `analysis/stats.py`; a Welch t interval beside it in `claims.csv`), and P(A > B) is the "
+          "probability of improvement (Mann-Whitney, as in rliable). **reproduced / supported**: the interval excludes 0 in A's favour; **contradicted**: "
+          "it excludes 0 the other way; **no difference larger than X**: it lies within +-X (X = "
+          f"{claims_mod.RATE_MARGIN} for rates and returns, {claims_mod.COUNT_MARGIN:.0%} of the larger mean for counts "
+          "and env steps); **inconclusive** otherwise, with the seeds per side that would decide it at 80% power "
+          "at the observed spread and difference.", "",
+          f"{len(decided)} of {len(claims)} claims decided. "
+          + (stats.multiplicity_note(len(tested)) if hasattr(stats, "multiplicity_note") and tested else ""), ""]
+    for group, title in (("paper", "The paper's claims"), ("ablation", "Why: ablations of the adaptation stage")):
+        rows = [r for r in claims if r["group"] == group]
+        if rows:
+            s += [f"### {title}", ""] + claims_md(rows) + [""]
+    cols = ["experiment", "arm", "task", "method", "variant", "metric", "n_seeds", "mean", "std", "ci95_low",
+            "ci95_high", "paper"]
+    for name, title in (("table5_multitask.csv", "Table 5: transfer and scratch, adaptation stage"),
+                        ("table4_sampling_ratio.csv", "Table 4: dual buffer sampling ratio, adaptation stage"),
+                        ("ablations.csv", "Ablations, adaptation stage"),
+                        ("single_task.csv", "Single-task learning (paper Fig. 4 gives curves only)")):
+        if tables[name]:
+            s += [f"## {title} (`{name}`)", "", md_table(tables[name], cols)]
+    s += ["## Metrics", ""] + [f"- `{m}`: {doc}" for m, (_, doc) in METRICS.items()] + [""]
+    s += ["## Figures", ""] + [f"![{f}]({f})" for f in figures] + [""]
+    if unfinished:
+        s += ["## Unfinished runs (not counted)", ""] + [f"- {u}" for u in unfinished] + [""]
+    return "\n".join(s)
+
+
+def build_report(folder, resamples: int = 10_000, reference: Optional[Path] = None) -> List[Path]:
+    """Write scores/curves (from runs), then tables, claims, plots and summary.md; return the paths written."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise ConfigError(f"no such folder: {folder}")
+    runs, unfinished = load_runs(folder)
+    written: List[Path] = []
+    old_scores = read_rows(folder / SCORES) if (folder / SCORES).is_file() else None
+    if runs:
+        new_scores = score_rows(runs)
+        if old_scores is not None:
+            missing = sorted({r["run"] for r in old_scores} - {r["run"] for r in new_scores})
+            if missing:
+                raise ConfigError(f"{folder / SCORES} holds {len(missing)} runs this folder no longer has "
+                                  f"(e.g. {missing[0]}); refusing to replace it with less")
+        atomic_write_text(folder / SCORES, rows_text(new_scores, SCORE_COLUMNS))
+        atomic_write_text(folder / CURVES, rows_text(curve_rows(runs), CURVE_COLUMNS))
+        atomic_write_text(folder / "hyperparameters.csv", csv_text(hyperparameter_rows(runs)))
+        written += [folder / SCORES, folder / CURVES, folder / "hyperparameters.csv"]
+    elif old_scores is None or not (folder / CURVES).is_file():
+        raise ConfigError(f"{folder} holds no finished runs and no {SCORES}/{CURVES}: nothing to report "
+                          f"({len(unfinished)} unfinished runs)")
+    # everything below reads the two files back, so a rebuild without run folders is byte-identical
+    scores, curves = read_rows(folder / SCORES), read_rows(folder / CURVES)
+    ref_curves = None
+    if reference is not None:
+        if not (Path(reference) / CURVES).is_file():
+            raise ConfigError(f"--reference {reference} holds no {CURVES}")
+        ref_curves = read_rows(Path(reference) / CURVES)
+    tables = build_tables(scores, _default_experiments())
+    for name, rows in tables.items():
+        atomic_write_text(folder / name, csv_text(rows, TABLE_COLUMNS))
+        written.append(folder / name)
+    claims = claims_mod.claim_rows(scores, resamples)
+    atomic_write_text(folder / "claims.csv", csv_text(claims, claims_mod.CLAIM_COLUMNS))
+    written.append(folder / "claims.csv")
+    figures = []
+    ablations = [e for e in dict.fromkeys(r["experiment"] for r in scores) if e not in _default_experiments()]
+    for name, fn in (("fig4_single_task.png", lambda p: plots.plot_fig4(curves, p, ref_curves)),
+                     ("fig5_multitask.png", lambda p: plots.plot_fig5(curves, p, ref_curves)),
+                     ("fig6_ablations.png", lambda p: plots.plot_ablations(curves, p, ablations))):
+        if fn(folder / name):
+            figures.append(name)
+            written.append(folder / name)
+    atomic_write_text(folder / "summary.md", summary_md(folder, scores, tables, claims, figures, len(runs),
+                                                        unfinished))
+    written.append(folder / "summary.md")
+    return written
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    p = OneLineParser(prog="python -m maniskill_dualher.report",
+                      description="Rebuild scores, tables (CSV), claims, plots (PNG) and summary.md of a sweep folder "
+                                  "from its run folders, or from its scores.csv/curves.csv; no training.")
+    p.add_argument("folder", help="a sweep's --out folder (e.g. runs/quick) or a committed results folder")
+    p.add_argument("--reference", help="another results folder whose curves are drawn beside these (dotted)")
+    p.add_argument("--resamples", type=int, default=10_000, help="bootstrap resamples (default: %(default)s)")
+    a = p.parse_args(argv)
+    try:
+        if a.resamples < 100:
+            raise ConfigError(f"--resamples must be >= 100, got {a.resamples}")
+        written = build_report(Path(a.folder), a.resamples, Path(a.reference) if a.reference else None)
+    except ConfigError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    for w in written:
+        print(w)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,385 @@
+"""Statistics that decide a claim: a 95% CI on the *difference* between two sides, and a verdict.
+
+A claim says side A beats side B (the paper's direction). Each side is one score per seed (independent
+runs; seeds are not paired across methods), typically n = 3..30 per side and skewed (counts of successes,
+steps to a threshold). P(A > B) (+ half the ties) is the Mann-Whitney U statistic over n_A n_B, as in
+rliable.
+
+The interval: symmetric bootstrap-t, floored at Welch
+------------------------------------------------------
+The difference of means d = mean(A) - mean(B) has Welch's standard error se = sqrt(s_A^2/n_A + s_B^2/n_B).
+Each side is resampled within itself (rliable's "stratified" bootstrap, one stratum per side), B = 10,000
+seeded resamples, and each resample is studentized with its own Welch standard error,
+t* = (d* - d) / se*. The interval is d +- q se, where q is the 95% quantile of |t*| (the *symmetric*
+bootstrap-t, Hall 1988), but never less than Welch's t quantile t_{0.975, df} (Welch-Satterthwaite df):
+at n = 3..4 per side |t*| takes few distinct values, and an interval narrower than Welch's would be
+overconfidence we cannot check. A Welch t interval is reported beside it (``welch_low``/``welch_high``).
+
+Why not the percentile bootstrap (what this module used before): it ignores that the spread itself is
+estimated from a handful of seeds, so at small n it is too narrow. Equal-tailed bootstrap-t and BCa were
+measured too (table below): BCa is no better than the percentile interval on lognormal or exponential
+seeds and only slightly better on counts; the equal-tailed bootstrap-t undercovers on lognormal and
+exponential seeds (down to 0.905), as its two tails follow the few seeds' skewness, which is noise at
+this n; the symmetric one only borrows the size of |t*| from the resamples.
+
+Coverage of the true mean difference, 2000 simulated pairs of samples per cell, 2000 resamples inside
+each interval, n seeds per side (``null``: both sides from the same distribution; ``diff``: A from a
+wider member of the family: lognormal(0.5, 1) vs lognormal(0, 1),
+exponential mean 2 vs 1, zero-inflated Poisson 30% zeros lambda 8 vs 5, and "learned or not" success
+counts out of 20, a mixture of Binomial(20, 0.7) and Binomial(20, 0.1), 70% vs 50% learned); measured
+with ``python -m maniskill_dualher.analysis.stats --reps 2000 --resamples 2000``::
+
+    case  data                  n         pct        BCa      welch     boot-t sym boot-t  | median width / Welch's
+    null  lognormal             4       0.846      0.817      0.982      0.978      0.989  | 0.60 0.63 1.00 1.25 1.35
+    null  lognormal             6       0.889      0.846      0.981      0.958      0.990  | 0.75 0.78 1.00 1.10 1.17
+    null  lognormal            16       0.918      0.868      0.970      0.916      0.979  | 0.92 0.95 1.00 1.05 1.08
+    null  exponential           4       0.854      0.835      0.975      0.976      0.985  | 0.62 0.64 1.00 1.21 1.27
+    null  exponential           6       0.901      0.880      0.973      0.960      0.982  | 0.77 0.79 1.00 1.09 1.12
+    null  exponential          16       0.913      0.899      0.961      0.922      0.969  | 0.92 0.93 1.00 1.02 1.03
+    null  zero-infl. Poisson    4       0.887      0.895      0.954      0.966      0.973  | 0.65 0.68 1.00 1.15 1.18
+    null  zero-infl. Poisson    6       0.910      0.918      0.952      0.965      0.964  | 0.79 0.79 1.00 1.06 1.06
+    null  zero-infl. Poisson   16       0.935      0.937      0.945      0.949      0.947  | 0.92 0.93 1.00 1.00 1.01
+    null  learned or not /20    4       0.879      0.886      0.968      0.991      0.991  | 0.66 0.67 1.00 1.19 1.21
+    null  learned or not /20    6       0.906      0.936      0.956      0.994      0.990  | 0.79 0.79 1.00 1.08 1.08
+    null  learned or not /20   16       0.942      0.953      0.955      0.974      0.958  | 0.93 0.93 1.00 1.01 1.01
+    diff  lognormal             4       0.806      0.784      0.957      0.945      0.973  | 0.60 0.63 1.00 1.26 1.36
+    diff  lognormal             6       0.868      0.840      0.949      0.923      0.962  | 0.77 0.79 1.00 1.14 1.21
+    diff  lognormal            16       0.904      0.862      0.948      0.905      0.962  | 0.91 0.95 1.00 1.06 1.11
+    diff  exponential           4       0.801      0.795      0.941      0.931      0.966  | 0.61 0.63 1.00 1.26 1.34
+    diff  exponential           6       0.863      0.853      0.939      0.928      0.954  | 0.75 0.78 1.00 1.11 1.16
+    diff  exponential          16       0.908      0.906      0.938      0.927      0.944  | 0.92 0.94 1.00 1.05 1.06
+    diff  zero-infl. Poisson    4       0.857      0.866      0.954      0.965      0.970  | 0.63 0.65 1.00 1.16 1.20
+    diff  zero-infl. Poisson    6       0.897      0.905      0.942      0.959      0.960  | 0.78 0.78 1.00 1.07 1.08
+    diff  zero-infl. Poisson   16       0.934      0.942      0.948      0.962      0.950  | 0.92 0.92 1.00 1.01 1.01
+    diff  learned or not /20    4       0.853      0.882      0.968      0.976      0.983  | 0.65 0.66 1.00 1.22 1.25
+    diff  learned or not /20    6       0.894      0.917      0.949      0.986      0.979  | 0.79 0.79 1.00 1.10 1.09
+    diff  learned or not /20   16       0.929      0.944      0.950      0.971      0.955  | 0.93 0.93 1.00 1.01 1.01
+
+At n = 6 the chosen interval covers 0.954-0.990 in every case above, percentile 0.863-0.910, Welch t
+0.939-0.981 (Welch alone would also clear 93%, but drifts to 0.94 when a skewed side dominates; the floor
+makes ours cover at least as often as Welch's). Width: the median interval at n = 6 is 1.06-1.21x Welch's
+(percentile: 0.75-0.79x). Its tail is wider where one seed sits far above the rest: at n = 6 the 90th
+percentile of the width ratio to Welch is 2.1-2.3x on lognormal seeds, 1.5-1.7x on exponential ones,
+<= 1.4x on the count data; such a sample cannot support a narrow interval. Seeded (``seed``); across seeds the endpoints move by ~0.5-1%
+of the width at B = 10,000. Cost: ~3 ms per comparison at n = 6, ~17 ms at n = 30 (10,000 resamples).
+
+Degenerate inputs: fewer than MIN_SEEDS per side gives no interval (NaN, inconclusive); no spread on
+either side gives the zero-width interval [d, d] (every resample has the same difference); when 5% or
+more of the resamples have no spread on either side (e.g. a side of mostly zeros), |t*| is infinite for
+them and the bootstrap cannot studentize, so the Welch t interval is used (``ci_method`` says so).
+
+Verdicts follow the interval and nothing else:
+
+* **reproduced**: the CI excludes 0 in the paper's direction;
+* **contradicted**: the CI excludes 0 the other way;
+* **no difference larger than X**: the CI lies within +-X, where X is the claim's stated margin of
+  practical equivalence;
+* **inconclusive**: none of these.
+
+For an inconclusive claim we say how many seeds per side would likely decide it, at 80% power:
+taking the observed difference d and variances as the truth, a two-sided 5% test of d = 0 with n seeds
+per side has 80% power when n = (z_0.975 + z_0.8)^2 (s_A^2 + s_B^2) / d^2 (~7.85 (s_A^2 + s_B^2) / d^2);
+for the equivalence direction the same with margin - |d| in place of d (the CI half-width must clear
+margin - |d|). The smaller of the two, at least max(n_A, n_B) + 1, and none above MAX_SEEDS_ADVICE. (The
+old rule, 1.96^2 (s_A^2 + s_B^2) / d^2, only makes the CI *expected* to clear 0: about 50% power.) It is
+a normal approximation, so at small n it is optimistic; it is advice, never a verdict.
+
+Each claim's CI is at 95%; with many claims some exclude 0 by chance: ``multiplicity_note`` says how many
+to expect, ``bonferroni_level`` gives the per-claim level a Bonferroni correction would use.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+from dataclasses import dataclass
+from typing import Callable, Dict, Optional, Sequence, Tuple
+
+import numpy as np
+
+REPRODUCED = "reproduced"
+CONTRADICTED = "contradicted"
+EQUIVALENT = "no difference larger than"
+INCONCLUSIVE = "inconclusive"
+MIN_SEEDS = 3            # fewer per side: no CI is computed (a bootstrap of 2 values is just their range)
+MAX_SEEDS_ADVICE = 1000  # above this, "more seeds" is no advice
+POWER = 0.8              # seeds_to_decide: power of a two-sided 5% test at the observed difference
+
+BOOT_T = "symmetric bootstrap-t"   # ci_method values
+WELCH = "welch-t"
+WELCH_FALLBACK = "welch-t (bootstrap-t degenerate)"
+NO_SPREAD = "exact (no spread)"
+CI_METHOD = "symmetric bootstrap-t: resampled Welch t statistics, never narrower than Welch's t interval"
+
+# Relative to the data's magnitude: below this a resample's spread or shift is floating-point noise.
+_TOL = 1e-10
+
+
+@dataclass
+class Comparison:
+    n_a: int
+    n_b: int
+    mean_a: float
+    mean_b: float
+    diff: float
+    ci_low: float
+    ci_high: float
+    prob_improvement: float
+    margin: float
+    verdict: str
+    seeds_to_decide: Optional[int]   # per side, for an inconclusive verdict
+    welch_low: float = math.nan      # Welch t interval, a cross-check
+    welch_high: float = math.nan
+    ci_method: str = BOOT_T          # what produced ci_low/ci_high (see the module doc)
+
+    def verdict_text(self) -> str:
+        if self.verdict == EQUIVALENT:
+            return f"{EQUIVALENT} {self.margin:.3g}"
+        if self.verdict == INCONCLUSIVE:
+            if self.n_a < MIN_SEEDS or self.n_b < MIN_SEEDS:
+                return f"{INCONCLUSIVE} (needs >= {MIN_SEEDS} seeds per side)"
+            more = f"~{self.seeds_to_decide} seeds per side would likely decide it (80% power)" \
+                if self.seeds_to_decide is not None else "more seeds would not decide it at this spread"
+            return f"{INCONCLUSIVE} ({more})"
+        return self.verdict
+
+
+def _welch(a: np.ndarray, b: np.ndarray, level: float) -> Tuple[float, float, float, float]:
+    """(low, high, se, t quantile) of Welch's t interval for mean(a) - mean(b); se = 0 means no spread."""
+    from scipy.stats import t as t_dist
+
+    va, vb = a.var(ddof=1) / len(a), b.var(ddof=1) / len(b)
+    d, se = float(a.mean() - b.mean()), math.sqrt(va + vb)
+    if se == 0:
+        return d, d, 0.0, math.nan
+    # Welch-Satterthwaite; a side without spread contributes no term (df = the other side's n - 1)
+    df = (va + vb) ** 2 / ((va ** 2 / (len(a) - 1) if va else 0.0) + (vb ** 2 / (len(b) - 1) if vb else 0.0))
+    q = float(t_dist.ppf(0.5 + level / 2, df))
+    return d - q * se, d + q * se, se, q
+
+
+def _boot_means_vars(a, b, resamples, rng):
+    """Each side resampled within itself: means and variances (ddof=1) of every resample, vectorized."""
+    ra = a[rng.integers(0, len(a), (resamples, len(a)))]
+    rb = b[rng.integers(0, len(b), (resamples, len(b)))]
+    return ra.mean(1), ra.var(1, ddof=1), rb.mean(1), rb.var(1, ddof=1)
+
+
+def _boot_t(a, b, resamples, seed, level, symmetric=True) -> Tuple[float, float, str]:
+    wl, wh, se, q_welch = _welch(a, b, level)
+    d = float(a.mean() - b.mean())
+    if se == 0:  # every resample gives the same difference
+        return d, d, NO_SPREAD
+    ma, va, mb, vb = _boot_means_vars(a, b, resamples, np.random.default_rng(seed))
+    scale = max(float(np.abs(a).max()), float(np.abs(b).max()))
+    dev = (ma - mb) - d
+    se_star = np.sqrt(va / len(a) + vb / len(b))
+    dev[np.abs(dev) <= _TOL * scale] = 0.0
+    flat = se_star <= _TOL * scale  # a resample without spread: t* is 0 (no shift) or infinite
+    t = np.zeros_like(dev)
+    t[~flat] = dev[~flat] / se_star[~flat]
+    t[flat & (dev != 0)] = np.copysign(np.inf, dev[flat & (dev != 0)])
+    if symmetric:
+        qs = np.abs(t)
+        if np.mean(np.isinf(qs)) >= 1 - level:  # the quantile itself would be infinite
+            return wl, wh, WELCH_FALLBACK
+        q = max(float(np.quantile(qs[np.isfinite(qs)], _finite_rank(qs, level))), q_welch)
+        return d - q * se, d + q * se, BOOT_T
+    # equal-tailed bootstrap-t (measured in the module doc, not used by compare)
+    p_lo, p_hi = (1 - level) / 2, (1 + level) / 2
+    if np.mean(t == -np.inf) >= p_lo or np.mean(t == np.inf) >= p_lo:
+        return wl, wh, WELCH_FALLBACK
+    fin = np.sort(t[np.isfinite(t)])
+    n_neg = int(np.sum(t == -np.inf))
+    q_lo = float(np.quantile(fin, _finite_rank_at(p_lo, len(t), n_neg, len(fin))))
+    q_hi = float(np.quantile(fin, _finite_rank_at(p_hi, len(t), n_neg, len(fin))))
+    return d - q_hi * se, d - q_lo * se, "bootstrap-t"
+
+
+def _finite_rank(qs: np.ndarray, p: float) -> float:
+    """The p quantile of qs (with +inf entries, all at the top) as a quantile of its finite part."""
+    return _finite_rank_at(p, len(qs), 0, int(np.isfinite(qs).sum()))
+
+
+def _finite_rank_at(p: float, n_all: int, n_below: int, n_fin: int) -> float:
+    # position p (n_all - 1) in the full sorted sample, shifted past the -inf entries, as a fraction of
+    # the finite part (numpy's default "linear" quantile definition)
+    pos = p * (n_all - 1) - n_below
+    return min(max(pos / max(n_fin - 1, 1), 0.0), 1.0)
+
+
+def _percentile(a, b, resamples, seed, level) -> Tuple[float, float, str]:
+    d = float(a.mean() - b.mean())
+    if np.ptp(a) == 0 and np.ptp(b) == 0:
+        return d, d, NO_SPREAD
+    ma, _, mb, _ = _boot_means_vars(a, b, resamples, np.random.default_rng(seed))
+    lo, hi = np.quantile(ma - mb, [(1 - level) / 2, (1 + level) / 2])
+    return float(lo), float(hi), "percentile"
+
+
+def _bca(a, b, resamples, seed, level) -> Tuple[float, float, str]:
+    from scipy.stats import bootstrap
+
+    d = float(a.mean() - b.mean())
+    if np.ptp(a) == 0 and np.ptp(b) == 0:
+        return d, d, NO_SPREAD
+    import inspect
+    seeded = {"rng" if "rng" in inspect.signature(bootstrap).parameters else "random_state":
+              np.random.default_rng(seed)}  # scipy >= 1.15 names it rng
+    res = bootstrap((a, b), lambda x, y, axis: x.mean(axis) - y.mean(axis), vectorized=True, paired=False,
+                    n_resamples=resamples, confidence_level=level, method="BCa", **seeded)
+    return float(res.confidence_interval.low), float(res.confidence_interval.high), "BCa"
+
+
+METHODS: Dict[str, Callable] = {
+    BOOT_T: _boot_t,
+    "bootstrap-t": lambda a, b, r, s, lv: _boot_t(a, b, r, s, lv, symmetric=False),
+    "percentile": _percentile,
+    "BCa": _bca,
+    WELCH: lambda a, b, r, s, lv: _welch(a, b, lv)[:2] + (WELCH,),
+}
+
+
+def _as_scores(x: Sequence[float]) -> np.ndarray:
+    x = np.asarray(x, float).ravel()
+    if not np.isfinite(x).all():  # a NaN score is a broken run, not a data point
+        raise ValueError("scores must be finite")
+    return x
+
+
+def diff_ci(a: Sequence[float], b: Sequence[float], resamples: int = 10_000, seed: int = 0,
+            level: float = 0.95, method: str = BOOT_T) -> Tuple[float, float]:
+    """CI of mean(a) - mean(b) (the module doc's symmetric bootstrap-t unless ``method`` says otherwise:
+    one of METHODS, for comparison). NaN when a side has fewer than 2 values (no spread to estimate)."""
+    return _diff_ci(_as_scores(a), _as_scores(b), resamples, seed, level, method)[:2]
+
+
+def _diff_ci(a, b, resamples, seed, level, method) -> Tuple[float, float, str]:
+    if min(len(a), len(b)) < 2:
+        return math.nan, math.nan, method
+    return METHODS[method](a, b, resamples, seed, level)
+
+
+def prob_improvement(a: Sequence[float], b: Sequence[float]) -> float:
+    """P(A > B) + 0.5 P(A = B) over all pairs of runs (rliable's probability of improvement)."""
+    a, b = np.asarray(a, float)[:, None], np.asarray(b, float)[None, :]
+    return float(((a > b) + 0.5 * (a == b)).mean())
+
+
+def seeds_to_decide(a: np.ndarray, b: np.ndarray, margin: float, power: float = POWER) -> Optional[int]:
+    """Seeds per side at which a two-sided 5% test would, with ``power``, exclude 0 at the observed
+    difference, or fit the CI in +-margin (normal approximation; see the module doc)."""
+    from scipy.stats import norm
+
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    var = a.var(ddof=1) + b.var(ddof=1)
+    if not var > 0:
+        return None
+    k = (norm.ppf(0.975) + norm.ppf(power)) ** 2   # 7.85 at 80% power (1.96^2 = 3.84 is 50% power)
+    d = abs(a.mean() - b.mean())
+    cands = []
+    if d > 0:
+        cands.append(k * var / d ** 2)             # excludes 0
+    if margin > d:
+        cands.append(k * var / (margin - d) ** 2)  # |d| + half-width < margin: equivalent
+    if not cands:
+        return None
+    n = int(math.ceil(min(cands)))
+    n = max(n, max(len(a), len(b)) + 1)
+    return n if n <= MAX_SEEDS_ADVICE else None
+
+
+def bonferroni_level(n_claims: int, level: float = 0.95) -> float:
+    """Per-claim confidence level that keeps the chance of any false exclusion of 0 below 1 - level."""
+    return 1 - (1 - level) / max(int(n_claims), 1)
+
+
+def multiplicity_note(n_claims: int, level: float = 0.95) -> str:
+    """One sentence for the report: how many of n_claims CIs would exclude 0 by chance alone."""
+    n = int(n_claims)
+    alpha = 1 - level
+    tested = f"{n} claim was tested, at {level:.0%}" if n == 1 else f"{n} claims were tested, each at {level:.0%}"
+    return (f"{tested}; with {n} independent test{'s' if n != 1 else ''} about {alpha * n:.2g} would exclude 0 "
+            f"by chance if no difference existed (no correction applied; Bonferroni would use "
+            f"{bonferroni_level(n, level):.2%} per claim).")
+
+
+def compare(a: Sequence[float], b: Sequence[float], margin: float, resamples: int = 10_000,
+            seed: int = 0, level: float = 0.95) -> Comparison:
+    """Does A beat B? The difference A - B with its CI, and one verdict (see the module doc)."""
+    a, b = _as_scores(a), _as_scores(b)
+    if len(a) == 0 or len(b) == 0:
+        raise ValueError("compare needs at least one value per side")
+    mean_a, mean_b = float(a.mean()), float(b.mean())
+    diff = mean_a - mean_b
+    p_imp = prob_improvement(a, b)
+    if min(len(a), len(b)) < MIN_SEEDS:
+        return Comparison(len(a), len(b), mean_a, mean_b, diff, math.nan, math.nan, p_imp, margin,
+                          INCONCLUSIVE, None, ci_method="none (too few seeds)")
+    lo, hi, how = _diff_ci(a, b, resamples, seed, level, BOOT_T)
+    wl, wh, _, _ = _welch(a, b, level)
+    if lo > 0:
+        verdict = REPRODUCED
+    elif hi < 0:
+        verdict = CONTRADICTED
+    elif -margin <= lo and hi <= margin:
+        verdict = EQUIVALENT
+    else:
+        verdict = INCONCLUSIVE
+    need = seeds_to_decide(a, b, margin) if verdict == INCONCLUSIVE else None
+    return Comparison(len(a), len(b), mean_a, mean_b, diff, lo, hi, p_imp, margin, verdict, need, wl, wh, how)
+
+
+# ---- Coverage by simulation (the module doc's table) -------------------------------------------------
+# Each entry: (sampler of B's distribution, its mean, sampler of A's distribution in the "diff" case, its mean).
+SKEWED: Dict[str, Tuple[Callable, float, Callable, float]] = {
+    "lognormal": (lambda r, n: r.lognormal(0.0, 1.0, n), math.exp(0.5),
+                  lambda r, n: r.lognormal(0.5, 1.0, n), math.exp(1.0)),
+    "exponential": (lambda r, n: r.exponential(1.0, n), 1.0,
+                    lambda r, n: r.exponential(2.0, n), 2.0),
+    "zero-infl. Poisson": (lambda r, n: (r.random(n) >= 0.3) * r.poisson(5.0, n).astype(float), 0.7 * 5,
+                           lambda r, n: (r.random(n) >= 0.3) * r.poisson(8.0, n).astype(float), 0.7 * 8),
+    "learned or not /20": (lambda r, n: np.where(r.random(n) < 0.5, r.binomial(20, 0.7, n),
+                                                 r.binomial(20, 0.1, n)).astype(float), 0.5 * 14 + 0.5 * 2,
+                           lambda r, n: np.where(r.random(n) < 0.7, r.binomial(20, 0.7, n),
+                                                 r.binomial(20, 0.1, n)).astype(float), 0.7 * 14 + 0.3 * 2),
+}
+
+
+def coverage(dist: str, n: int, methods: Sequence[str], reps: int, resamples: int, shift: bool = False,
+             seed: int = 0) -> Dict[str, Tuple[float, float]]:
+    """{method: (coverage of the true mean difference, median width)} over ``reps`` simulated pairs."""
+    gen_b, mu_b, gen_a, mu_a = SKEWED[dist]
+    if not shift:
+        gen_a, mu_a = gen_b, mu_b
+    rng = np.random.default_rng(seed)
+    pairs = [(gen_a(rng, n), gen_b(rng, n)) for _ in range(reps)]
+    out = {}
+    for m in methods:
+        cis = np.array([_diff_ci(a, b, resamples, i, 0.95, m)[:2] for i, (a, b) in enumerate(pairs)])
+        out[m] = (float(np.mean((cis[:, 0] <= mu_a - mu_b) & (mu_a - mu_b <= cis[:, 1]))),
+                  float(np.median(cis[:, 1] - cis[:, 0])))
+    return out
+
+
+def _main(argv=None) -> None:
+    p = argparse.ArgumentParser(description="Coverage of the difference-of-means CIs on skewed data.")
+    p.add_argument("--reps", type=int, default=2000)
+    p.add_argument("--resamples", type=int, default=2000)
+    p.add_argument("--n", type=int, nargs="+", default=[4, 6, 16])
+    p.add_argument("--methods", nargs="+", default=["percentile", "BCa", WELCH, "bootstrap-t", BOOT_T])
+    args = p.parse_args(argv)
+    short = {"percentile": "pct", "BCa": "BCa", WELCH: "welch", "bootstrap-t": "boot-t", BOOT_T: "sym boot-t"}
+    print(f"{'case':<5} {'data':<19} {'n':>3}  " + " ".join(f"{short.get(m, m):>10}" for m in args.methods)
+          + "  | median width / Welch's")
+    for shift in (False, True):
+        for dist in SKEWED:
+            for n in args.n:
+                res = coverage(dist, n, args.methods, args.reps, args.resamples, shift)
+                w_welch = res[WELCH][1] if WELCH in res else math.nan
+                print(f"{'diff' if shift else 'null':<5} {dist:<19} {n:>3}  "
+                      + " ".join(f"{res[m][0]:>10.3f}" for m in args.methods)
+                      + "  | " + " ".join(f"{res[m][1] / w_welch:.2f}" for m in args.methods), flush=True)
+
+
+if __name__ == "__main__":
+    _main()

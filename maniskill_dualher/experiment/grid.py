@@ -1,0 +1,131 @@
+"""From a sweep definition (``sweep.json``) to run folders: one Node per run, each with its cells.
+
+A run's config is built in one order, so what wins is predictable:
+
+1. the preset's settings (``presets.py``), then the experiment kind's (HER k = 8 in chains);
+2. its step budget (per task and role: single, source stage, adaptation stage);
+3. the sweep's ``--set`` settings (every run, or per stage: ``adapt.sac.lr=3e-4``);
+4. the arm's settings.
+
+Folders are named by identity: ``runs/single/<task>-<method>-s<seed>-<hash of config>`` and
+``runs/chain/<method>-s<seed>/stage<i>-<task>[-r<ratio>]-<hash of stages 0..i>``; equal runs get equal
+folders and are run once, whichever experiments and arms ask for them. Each node carries the list of
+cells (experiment, arm, task, chain, method, variant, seed, stage, role, parent) that the sweep writes
+into the folder's ``cell.json``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Dict, List, Optional, Sequence
+
+from ..config import RunConfig
+from ..methods import method_spec
+from ..rundir import RUNS_DIR
+from . import overrides, protocol
+from .presets import HER_K_MULTITASK, Preset
+from .registry import Experiment, experiment
+
+
+@dataclass
+class Node:
+    """One run of the grid: a single-task run or one stage of a chain."""
+    rel: str                                   # folder relative to <out>
+    cfg: RunConfig
+    label: str
+    parent: Optional[str] = None               # rel of the stage this one starts from
+    stages: Optional[List[RunConfig]] = None   # the chain (stage nodes only)
+    stage: Optional[int] = None
+    carry_replay: bool = False
+    cells: List[dict] = field(default_factory=list)
+    descendants: int = 0                       # scheduling priority: long chains first
+
+    def payload(self, out: Path) -> dict:
+        """A plain dict a worker (process or Ray) can run without the grid."""
+        p = {"rel": self.rel, "out": str(out / self.rel), "cfg": self.cfg.to_dict(), "label": self.label}
+        if self.stages is not None:
+            p.update(stages=[s.to_dict() for s in self.stages], stage=self.stage,
+                     chain_dir=str((out / self.rel).parent), carry_replay=self.carry_replay)
+        return p
+
+
+def preset_from_definition(d: dict) -> Preset:
+    b = d["budgets"]
+    return Preset("", single_steps=b["single"], stage_steps=b["source"], adaptation_steps=b["adapt"],
+                  seeds=tuple(d["seeds"]), chain_seeds=tuple(d["chain_seeds"]),
+                  settings=tuple(d["preset_settings"]), default_steps=b.get("default"))
+
+
+def _seeds(exp: Experiment, d: dict) -> List[int]:
+    seeds = list(d["seeds"] if exp.kind == "single" else d["chain_seeds"])
+    return seeds[: exp.max_seeds] if exp.max_seeds else seeds
+
+
+def chain_configs(p: Preset, exp: Experiment, arm_settings, user, method: str, seed: int,
+                  order: Sequence[str], adapt_factor: float = 1.0) -> List[RunConfig]:
+    """The stage configs of one chain (scratch: a one-stage chain on the last task)."""
+    tasks = list(order) if exp.kind == "chain" else list(order[-1:])
+    n = len(tasks)
+    stages = []
+    for i, task in enumerate(tasks):
+        cfg = p.base_config(method, seed)
+        cfg.env_id = task
+        cfg.replay.her_k = HER_K_MULTITASK
+        cfg.total_steps = p.steps("source", task) if i < n - 1 else max(1, round(p.steps("adapt", task) * adapt_factor))
+        cfg = overrides.apply(cfg, tuple(user) + tuple(arm_settings), stage=i, n_stages=n)
+        stages.append(cfg.validate())
+    return stages
+
+
+def build_grid(d: dict) -> List[Node]:
+    """Every run of a sweep definition, deduplicated by folder, each with the cells it serves."""
+    p = preset_from_definition(d)
+    user = overrides.parse_all(d.get("settings", []))
+    nodes: Dict[str, Node] = {}
+
+    def add(n: Node, cell: dict) -> None:
+        node = nodes.setdefault(n.rel, n)
+        node.cells.append(cell)
+
+    for exp_name in d["experiments"]:
+        exp = experiment(exp_name)
+        methods = [m for m in exp.method_names() if m in d["methods"]]
+        for arm in exp.arms:
+            settings = overrides.parse_all(arm.settings)
+            for method in methods:
+                if arm.methods is not None and method not in arm.methods:
+                    continue
+                seeds = _seeds(exp, d)
+                for seed in seeds[: arm.max_seeds] if arm.max_seeds else seeds:
+                    base = {"experiment": exp.name, "arm": arm.name, "method": method, "seed": seed}
+                    if exp.kind == "single":
+                        for task in d["tasks"]:
+                            cfg = p.base_config(method, seed)
+                            cfg.env_id, cfg.total_steps = task, p.steps("single", task)
+                            cfg = overrides.apply(cfg, tuple(user) + tuple(settings)).validate()
+                            rel = f"{RUNS_DIR}/single/{task}-{method}-s{seed}-{protocol.short_hash(cfg.to_dict())}"
+                            add(Node(rel, cfg, f"single {task} {method} seed {seed}"),
+                                {**base, "task": task, "chain": "", "variant": method_spec(method).tag(cfg),
+                                 "stage": 0, "n_stages": 1, "role": "single", "parent": None})
+                        continue
+                    stages = chain_configs(p, exp, settings, user, method, seed, d["task_order"],
+                                           arm.adapt_steps_factor)
+                    protocol.validate_chain(stages)
+                    chain = " > ".join(s.env_id for s in stages)
+                    parent = None
+                    for i, cfg in enumerate(stages):
+                        rel = f"{RUNS_DIR}/chain/{method}-s{seed}/{protocol.stage_dirname(stages, i, d['carry_replay'])}"
+                        variant = method_spec(method).tag(cfg)
+                        role = "adapt" if i == len(stages) - 1 else "source"
+                        add(Node(rel, cfg, f"{method}{' ' + variant if variant else ''} seed {seed} stage {i} "
+                                           f"{cfg.env_id}", parent=parent, stages=stages, stage=i,
+                                 carry_replay=d["carry_replay"]),
+                            {**base, "task": cfg.env_id, "chain": chain, "variant": variant, "stage": i,
+                             "n_stages": len(stages), "role": role, "parent": parent})
+                        parent = rel
+    for n in nodes.values():  # priority = how many runs wait on this one
+        q = n.parent
+        while q is not None:
+            nodes[q].descendants += 1
+            q = nodes[q].parent
+    return list(nodes.values())

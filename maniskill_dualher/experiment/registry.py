@@ -1,0 +1,123 @@
+"""The experiment registry: every experiment the sweep can run, as data.
+
+An experiment says which runs it makes (``kind``: single-task runs, transfer chains, or the from-scratch
+control), for which methods, and its **arms**: a name plus dotted ``RunConfig`` settings, for every stage
+or one (``adapt.sac.random_steps=0``; see ``overrides.py``). The grid (``grid.py``) turns an experiment
+into run folders; runs that come out identical (same config, same parent) are shared between arms and
+experiments, so an ablation that changes only the adaptation stage reuses the source stages, and its
+unchanged arm *is* the transfer experiment's run. Every run folder records its cells (experiment, arm,
+task, chain, method, ...) in ``cell.json``; the analysis groups by them and infers nothing.
+
+Add an experiment: one ``Experiment(...)`` entry in ``EXPERIMENTS`` below; claims about it go in
+``analysis/claims.py``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Dict, Optional, Tuple, Union
+
+from ..config import ConfigError
+from ..methods import METHOD_SPECS
+
+KINDS = ("single", "chain", "scratch")
+PAPER_ARM = "paper"
+
+
+@dataclass(frozen=True)
+class Arm:
+    name: str
+    settings: Tuple[str, ...] = ()            # dotted overrides, optionally per stage (adapt., source., stageN.)
+    methods: Optional[Tuple[str, ...]] = None  # only these of the experiment's methods (None: all of them)
+    doc: str = ""
+    max_seeds: Optional[int] = None            # only the first n of the experiment's seeds (second-tier arms)
+    adapt_steps_factor: float = 1.0            # the adaptation stage's budget times this (a longer regime)
+
+
+@dataclass(frozen=True)
+class Experiment:
+    name: str
+    title: str
+    kind: str                                  # "single", "chain" (the transfer chain) or "scratch"
+    arms: Tuple[Arm, ...] = (Arm(PAPER_ARM),)
+    # "all", "transfer" (MethodSpec.transfer), "sampling_ratio" (MethodSpec.sampling_ratio) or method names
+    methods: Union[str, Tuple[str, ...]] = "all"
+    default: bool = False                      # run when --experiments is not given
+    max_seeds: Optional[int] = None            # use only the first n of the preset's seeds (costly arms)
+    paper: str = ""                            # the paper's figure/table it reproduces, if any
+
+    def method_names(self) -> Tuple[str, ...]:
+        if self.methods == "all":
+            return tuple(METHOD_SPECS)
+        if self.methods == "transfer":
+            return tuple(m for m, s in METHOD_SPECS.items() if s.transfer)
+        if self.methods == "sampling_ratio":
+            return tuple(m for m, s in METHOD_SPECS.items() if s.sampling_ratio)
+        return tuple(m for m in self.methods if m in METHOD_SPECS)
+
+    def arm(self, name: str) -> Arm:
+        for a in self.arms:
+            if a.name == name:
+                return a
+        raise ConfigError(f"experiment {self.name!r} has no arm {name!r}")
+
+
+def _ratio_arm(r: str) -> Arm:
+    return Arm(r, (f"adapt.replay.ratio={r}",), doc=f"adaptation stage samples R/E at {r}")
+
+
+EXPERIMENTS: Dict[str, Experiment] = {e.name: e for e in (
+    # ------------------------------------------------------------------ the paper's experiments
+    Experiment("single", "Single-task learning", "single", default=True, paper="Fig. 4"),
+    Experiment("transfer", "Transfer chain, adaptation on the last task", "chain", methods="transfer",
+               default=True, paper="Fig. 5, Table 5"),
+    Experiment("ratios", "Dual buffer R/E sampling ratio in the adaptation stage", "chain",
+               arms=tuple(_ratio_arm(r) for r in ("0.5/0.5", "0.6/0.4", "0.7/0.3")), methods="sampling_ratio",
+               default=True, paper="Table 4"),
+    Experiment("scratch", "The last task from scratch, adaptation budget and settings (control)", "scratch",
+               methods="transfer", default=True, paper="not in the paper (tests section 3.1's premise)"),
+    # ------------------------------------------------------------------ why the dual buffer loses (ablations)
+    # Each changes the adaptation stage only, so every arm adapts the same prior (the source stages are shared).
+    Experiment("e_share", "How much of the dual buffer's updates E takes", "chain", methods=("dual_buffer",), arms=(
+        Arm(PAPER_ARM, doc="Algorithm 1: whole batch from E with probability 0.4"),
+        Arm("e_off", ("adapt.replay.ratio=1/0",), doc="same prior, E never sampled in adaptation"),
+        Arm("split", ("adapt.replay.dual_mode=split",), doc="E's 40% inside every batch", max_seeds=8),
+        Arm("r_matched", ("adapt.sac.updates_per_step=1/0.6",),
+            doc="1/0.6 updates per env step: as many updates from R as SAC+HER+PER", max_seeds=8),
+    )),
+    Experiment("e_content", "What the dual buffer's E holds in adaptation", "chain", methods=("dual_buffer",), arms=(
+        Arm("e_target_only", ("adapt.replay.carry_success_buffer=false",),
+            doc="E starts empty in adaptation: only the target task's successes", max_seeds=8),
+        Arm("e_episodes", ("adapt.replay.success_buffer=episodes",),
+            doc="section 4.2: every real transition of a successful episode enters E", max_seeds=8),
+    )),
+    Experiment("warm_start", "Fine-tuning collapse: the prior acts from the first step", "chain", methods="transfer",
+               arms=(
+        Arm(PAPER_ARM, doc="1000 uniform-random steps first, lr 1e-3"),
+        Arm("warm", ("adapt.sac.random_steps=0", "adapt.sac.learning_starts=0"),
+            doc="no random steps: the prior acts and learns from step 0 on its carried replay"),
+        Arm("warm_low_lr", ("adapt.sac.random_steps=0", "adapt.sac.learning_starts=0", "adapt.sac.lr=3e-4"),
+            doc="warm, and a lower adaptation learning rate", max_seeds=8),
+    )),
+    Experiment("her_episode", "Algorithm 1's hindsight goals: k random states of the episode", "chain",
+               methods="transfer", arms=(
+        Arm(PAPER_ARM, doc="HER 'future'"),
+        Arm("her_episode", ("replay.her_strategy=episode",), doc="HER 'episode' in every stage (changes the prior)"),
+    ), max_seeds=8),
+    Experiment("regime", "A longer adaptation (4x)", "chain", methods="transfer", arms=(
+        Arm("long", doc="4x the adaptation budget", adapt_steps_factor=4.0),
+    ), max_seeds=6),
+)}
+
+
+def experiment(name: str) -> Experiment:
+    if name not in EXPERIMENTS:
+        raise ConfigError(f"unknown experiment {name!r} (choose from {', '.join(EXPERIMENTS)})")
+    return EXPERIMENTS[name]
+
+
+def default_experiments() -> Tuple[str, ...]:
+    return tuple(n for n, e in EXPERIMENTS.items() if e.default)
+
+
+def ablation_experiments() -> Tuple[str, ...]:
+    return tuple(n for n, e in EXPERIMENTS.items() if not e.default)

@@ -1,0 +1,289 @@
+"""The sweep: experiments x arms x methods x seeds as resumable run folders, then the report.
+
+    python -m maniskill_dualher.sweep --preset smoke --out /tmp/smoke   # the whole pipeline in about a minute
+    python -m maniskill_dualher.sweep --dry-run                         # list the runs and their cost; write nothing
+    python -m maniskill_dualher.sweep --set replay.dual_mode=split --dry-run
+
+Each run's folder is named by its config (``grid.py``): finished runs are skipped, interrupted ones resume
+from their checkpoint, so killing the sweep at any moment and rerunning the same command ends with the
+same tables. When the grid is done the report (``analysis/report.py``) writes scores, tables, claims,
+plots and summary.md into ``--out``.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from pathlib import Path
+from typing import List, Optional, Sequence, Tuple
+
+from .. import rundir
+from ..cli import OneLineParser
+from ..config import TASKS, ConfigError
+from ..methods import METHOD_SPECS
+from ..rundir import RUNS_DIR, SWEEP
+from . import overrides
+from .grid import Node, build_grid
+from .presets import PRESETS, preset
+from .registry import EXPERIMENTS, ablation_experiments, default_experiments
+
+DEFINITION_VERSION = 2
+
+
+def _split(text: str) -> List[str]:
+    return [t.strip() for t in text.split(",") if t.strip()]
+
+
+def parse_seeds(text: str) -> Tuple[int, ...]:
+    """'3' -> (0, 1, 2) (a count); '0,4,7' or '7,' -> those seeds."""
+    try:
+        seeds = tuple(int(s) for s in _split(text))
+    except ValueError:
+        raise ConfigError(f"--seeds must be a count (3) or a list (0,1,2), got {text!r}") from None
+    bad = [s for s in seeds if s < 0]
+    if bad:
+        raise ConfigError(f"seed must be >= 0, got {bad[0]}")
+    if "," not in text and seeds:  # a count
+        if seeds[0] == 0:
+            raise ConfigError("--seeds count must be >= 1, got 0")
+        return tuple(range(seeds[0]))
+    if not seeds or len(set(seeds)) != len(seeds):
+        raise ConfigError(f"--seeds must list distinct seeds, got {text!r}")
+    return seeds
+
+
+def _pick(text: str, allowed: Sequence[str], what: str) -> List[str]:
+    items = _split(text)
+    for x in items:
+        if x not in allowed:
+            raise ConfigError(f"unknown {what} {x!r} (choose from {', '.join(allowed)})")
+    if not items:
+        raise ConfigError(f"no {what} given")
+    return items
+
+
+def _experiments(text: Optional[str]) -> List[str]:
+    if not text or text == "default":
+        return list(default_experiments())
+    names: List[str] = []
+    for x in _split(text):
+        group = {"all": list(EXPERIMENTS), "ablations": list(ablation_experiments()),
+                 "default": list(default_experiments())}.get(x)
+        for n in group or _pick(x, list(EXPERIMENTS), "experiment"):
+            if n not in names:
+                names.append(n)
+    return names
+
+
+def definition_from_args(a: argparse.Namespace) -> dict:
+    """The sweep's definition (what sweep.json holds): everything that decides which runs exist."""
+    p = preset(a.preset)
+    budgets = {"single": dict(p.single_steps), "source": dict(p.stage_steps), "adapt": dict(p.adaptation_steps),
+               "default": p.default_steps}
+    if a.steps is not None:
+        if a.steps < 1:
+            raise ConfigError(f"--steps must be >= 1, got {a.steps}")
+        for t in TASKS:
+            budgets["single"][t] = budgets["source"][t] = a.steps
+            budgets["adapt"][t] = max(1, round(a.steps * 120 / 200))  # paper: adaptation 120 vs 200 epochs
+    if a.adapt_steps is not None:
+        if a.adapt_steps < 1:
+            raise ConfigError(f"--adapt-steps must be >= 1, got {a.adapt_steps}")
+        budgets["adapt"] = {t: a.adapt_steps for t in TASKS}
+    seeds = parse_seeds(a.seeds) if a.seeds is not None else p.seeds
+    chain_seeds = parse_seeds(a.chain_seeds) if a.chain_seeds is not None else (
+        seeds if a.seeds is not None else p.chain_seeds)
+    settings = [o.text() for o in overrides.parse_all(a.set or [])]  # normalised, validated
+    order = _pick(a.task_order, TASKS, "task")
+    if len(set(order)) != len(order):
+        raise ConfigError(f"--task-order repeats a task: {a.task_order!r}")
+    d = {
+        "version": DEFINITION_VERSION,
+        "preset": a.preset,
+        "experiments": _experiments(a.experiments),
+        "tasks": _pick(a.tasks, TASKS, "task") if a.tasks else list(TASKS),
+        "methods": _pick(a.methods, list(METHOD_SPECS), "method") if a.methods else list(METHOD_SPECS),
+        "seeds": list(seeds),
+        "chain_seeds": list(chain_seeds),
+        "task_order": order,
+        "carry_replay": not a.no_carry_replay,
+        "budgets": budgets,
+        "preset_settings": list(p.settings),
+        "settings": settings,
+    }
+    for name in d["experiments"]:
+        e = EXPERIMENTS[name]
+        if not set(e.method_names()) & set(d["methods"]):
+            raise ConfigError(f"experiment {name!r} needs method {' or '.join(e.method_names())}")
+        if e.kind == "chain" and len(order) < 2:
+            raise ConfigError(f"experiment {name!r} needs a chain of at least 2 tasks, got --task-order {a.task_order!r}")
+    return d
+
+
+def check_out_folder(out: Path, d: dict, force: bool) -> None:
+    """Refuse an out folder that holds another sweep (or foreign runs) unless --force."""
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"--out {out} exists and is not a folder")
+    f = out / SWEEP
+    if f.is_file():
+        try:
+            old = json.loads(f.read_text())
+        except (OSError, ValueError):
+            old = {}
+        if old != d and not force:
+            diff = sorted(k for k in set(old) | set(d) if old.get(k) != d.get(k))
+            raise ConfigError(f"{out} holds a different sweep (differs in: {', '.join(diff)}); "
+                              f"use another --out, or --force to make this one current")
+        return
+    ours = set(d["runs"])
+    foreign = [str(p.parent.relative_to(out)) for p in sorted((out / RUNS_DIR).rglob(rundir.CONFIG))
+               if str(p.parent.relative_to(out)) not in ours] if (out / RUNS_DIR).is_dir() else []
+    if foreign and not force:
+        raise ConfigError(f"{out} holds {len(foreign)} runs of a different config (e.g. {foreign[0]}); "
+                          f"use another --out, or --force")
+    if (out / "scores.csv").is_file() and not (out / RUNS_DIR).is_dir() and not force:
+        raise ConfigError(f"{out} holds a report without run folders (a committed reference?); "
+                          f"use another --out")
+
+
+def make_parser() -> argparse.ArgumentParser:
+    presets = "\n".join(f"  {n:9s} {p.doc}" for n, p in PRESETS.items())
+    exps = "\n".join(f"  {n:11s} {e.kind:7s} {e.title}" + (f" [{e.paper}]" if e.paper else "")
+                     + ("" if e.default else " (ablation)") + "\n" + "".join(
+                         f"              arm {a.name}: {', '.join(a.settings) or 'as the preset'}\n" for a in e.arms)
+                     for n, e in EXPERIMENTS.items())
+    keys = "\n".join(f"  {k:28s} {v}" for k, v in overrides.keys().items())
+    p = OneLineParser(
+        prog="python -m maniskill_dualher.sweep",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description=(
+            "Run experiments (Beyene & Han 2022 and our ablations) and build their tables, claims and plots.\n\n"
+            "Runs are folders <out>/runs/...-<config hash>: finished ones are skipped, interrupted ones resume\n"
+            "from their checkpoint, and runs equal across experiments and arms are run once. The definition is\n"
+            "kept in <out>/sweep.json; an <out> holding a different sweep is refused (exit 2) unless --force."),
+        epilog=("presets (maniskill_dualher/experiment/presets.py):\n" + presets + "\n\n"
+                "experiments (maniskill_dualher/experiment/registry.py; --experiments default|ablations|all|NAME,...):\n"
+                + exps + "\n"
+                "settings (--set KEY=VALUE, any RunConfig field; prefix adapt., source. or stageN. for one stage):\n"
+                + keys + "\n\n"
+                "examples:\n"
+                "  python -m maniskill_dualher.sweep --preset smoke --out /tmp/smoke\n"
+                "  python -m maniskill_dualher.sweep --experiments e_share,warm_start --dry-run\n"
+                "  python -m maniskill_dualher.sweep --set adapt.sac.random_steps=0 --set sac.lr=3e-4 --dry-run\n"
+                "  python -m maniskill_dualher.sweep --preset paper --backend ray --ray-address auto --workers 64\n"
+                "  python -m maniskill_dualher.report runs/quick        # rebuild tables/plots from a sweep folder"),
+    )
+    p.add_argument("--preset", choices=sorted(PRESETS), default="quick", help="budget preset (default: quick)")
+    p.add_argument("--experiments", help="comma list of experiment names, or default (the paper's four), "
+                                         "ablations, all (default: default)")
+    p.add_argument("--tasks", help=f"tasks of single-task experiments (default: all: {','.join(TASKS)})")
+    p.add_argument("--methods", help=f"comma list of {', '.join(METHOD_SPECS)} (default: all; each experiment "
+                                     "uses those of them it is defined for)")
+    p.add_argument("--seeds", help="a count (3 -> seeds 0,1,2) or a list (0,4,7; one seed: '7,') for every "
+                                   "experiment; default: the preset's")
+    p.add_argument("--chain-seeds", "--transfer-seeds", dest="chain_seeds",
+                   help="seeds of chain and scratch experiments only (same syntax as --seeds)")
+    p.add_argument("--task-order", default=",".join(TASKS),
+                   help="the transfer chain; the last task is the adaptation target (default: %(default)s)")
+    p.add_argument("--steps", type=int, help="env steps of every single-task run and source stage "
+                                             "(adaptation stage: 120/200 of it, as in the paper)")
+    p.add_argument("--adapt-steps", type=int, help="env steps of the adaptation (last) stage")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE",
+                   help="a RunConfig setting for every run, e.g. sac.lr=3e-4, or one stage: adapt.sac.random_steps=0 "
+                        "(repeatable; keys below)")
+    p.add_argument("--no-carry-replay", action="store_true",
+                   help="transfer networks only; each stage starts with empty replay buffers")
+    p.add_argument("--out", help="output folder (default: runs/<preset>, ignored by git; committed results live in "
+                                 "results/ and a default run never writes there)")
+    p.add_argument("--workers", type=int, help="runs in parallel (default: min(2, CPU count); with --ray-address: "
+                                               "the cluster's CPUs)")
+    p.add_argument("--backend", choices=("local", "ray", "inline"), default="local",
+                   help="local process pool, Ray, or inline (one run at a time in this process: debugging, "
+                        "methods registered at run time); same results either way")
+    p.add_argument("--ray-address", help="join this Ray cluster (e.g. auto, ray://host:10001); "
+                                         "without it --backend ray starts a local Ray instance. "
+                                         "The cluster must see --out on a shared filesystem")
+    p.add_argument("--force", action="store_true", help="use an --out that holds a different sweep")
+    p.add_argument("--dry-run", action="store_true", help="print the runs and their cost, write nothing")
+    p.add_argument("--no-report", action="store_true", help="skip building the report at the end")
+    return p
+
+
+def write_cells(nodes: List[Node], out: Path) -> None:
+    """Each run folder's cells (which experiments and arms it serves): the report groups by these."""
+    for n in nodes:
+        path = out / n.rel / rundir.CELL
+        new = {"cells": n.cells}
+        if rundir.read_json(path) != new:
+            rundir.write_json(path, new)
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    from .backends import InlineBackend, LocalBackend, RayBackend, run_grid
+
+    parser = make_parser()
+    a = parser.parse_args(argv)
+    try:  # validate everything before writing anything
+        d = definition_from_args(a)
+        nodes = build_grid(d)
+        d["runs"] = sorted(n.rel for n in nodes)
+        out = Path(a.out if a.out else Path(RUNS_DIR) / a.preset)
+        if a.workers is not None and a.workers < 1:
+            raise ConfigError(f"--workers must be >= 1, got {a.workers}")
+        if a.ray_address and a.backend != "ray":
+            raise ConfigError("--ray-address needs --backend ray")
+        if a.backend == "ray":
+            try:
+                import ray  # noqa: F401
+            except ImportError:
+                raise ConfigError("--backend ray needs Ray: pip install 'ray[default]'") from None
+        check_out_folder(out, d, a.force)
+    except ConfigError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    workers = a.workers or (None if a.ray_address else min(2, os.cpu_count() or 1))
+    todo_cfgs = [n.cfg for n in nodes if not rundir.is_done(out / n.rel)]
+    if a.dry_run:
+        for n in nodes:
+            state = "done" if rundir.is_done(out / n.rel) else "todo"
+            cells = sorted({f"{c['experiment']}/{c['arm']}" for c in n.cells})
+            print(f"{state}  {n.rel}  [{', '.join(cells)}]")
+        if todo_cfgs:
+            from .cost import describe, grid_cost
+            for line in describe(grid_cost(todo_cfgs), workers or 1):
+                print(line)
+        total = sum(c.total_steps for c in todo_cfgs)
+        print(f"{len(nodes)} runs; {total} env steps to go; nothing written (--dry-run)")
+        return 0
+
+    rundir.write_json(out / SWEEP, d)
+    write_cells(nodes, out)
+    print(f"sweep {a.preset}: {len(nodes)} runs in {out} on {a.backend} backend", flush=True)
+    if todo_cfgs:
+        from .cost import describe, grid_cost
+        for line in describe(grid_cost(todo_cfgs), workers or 1):
+            print(line, flush=True)
+    backend = {"local": lambda: LocalBackend(workers), "inline": InlineBackend,
+               "ray": lambda: RayBackend(workers, a.ray_address)}[a.backend]()
+    cancel = True
+    try:
+        failed = run_grid(nodes, out, backend)
+        cancel = False
+    except KeyboardInterrupt:
+        print("interrupted: rerun the same command to resume", file=sys.stderr)
+        return 130
+    finally:
+        backend.close(cancel=cancel)
+    if not a.no_report:
+        from ..analysis.report import build_report
+        written = build_report(out)
+        print(f"report: {len(written)} files in {out} (summary: {out / 'summary.md'})")
+    if failed:
+        print(f"error: {len(failed)} runs did not finish (first: {failed[0]}); rerun to retry", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
