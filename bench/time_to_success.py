@@ -73,9 +73,8 @@ NAMES = {"ours": "ours sac_her_per", "sb3": "SB3 SAC + HER", "sbx": "SBX SAC + H
 
 # --------------------------------------------------------------------------- settings
 def our_config(task: str, seed: int, args):
-    from maniskill_dualher.sweep import PRESETS, base_config
-    cfg = base_config(PRESETS[args.preset], "sac_her_per", seed)
-    cfg.env_id = task
+    from maniskill_dualher.experiment.presets import PRESETS
+    cfg = PRESETS[args.preset].single_config("sac_her_per", seed, task)
     cfg.total_steps = args.max_steps
     cfg.eval_every = args.eval_every
     cfg.eval_episodes = args.eval_episodes
@@ -299,7 +298,7 @@ def main(argv=None) -> int:
     bad = [c for c in contenders if c not in CONTENDERS]
     if bad or not contenders or not tasks or args.seeds < 1 or args.max_steps < 1 or args.eval_every < 1:
         p.error(f"bad arguments (contenders {bad or contenders}, tasks {tasks}, seeds {args.seeds})")
-    from maniskill_dualher.sweep import PRESETS
+    from maniskill_dualher.experiment.presets import PRESETS
     if args.preset not in PRESETS:
         p.error(f"unknown preset {args.preset!r} (choose {', '.join(PRESETS)})")
     if "sbx" in contenders:

@@ -9,7 +9,9 @@ The env is built from the policy's run config (``RunConfig``: control mode, time
 whether success ends an episode), with ``--env`` replacing the task: the three tasks share one
 observation layout, so a policy trained on one acts on the others (zero-shot transfer). Episodes use
 reset seeds S, S+1, ... (default ``EVAL_SEED_BASE``, the seeds of the training loop's own evaluations,
-so ``--episodes`` = the run's ``eval_episodes`` reproduces its last ``eval_success_rate``), the
+so ``--episodes`` = the run's ``eval_episodes`` reproduces its own evaluation: state for state on
+ReachTarget; once the hand touches a lid or door, PhysX's CPU simulation is not bit-reproducible across resets,
+so an episode in a fresh simulator can end a step earlier or later than in the run's), the
 deterministic policy (tanh of the Gaussian mean) and the training evaluation's episode rules. Always one
 CPU-simulated env (a GPU-trained policy evaluates here too).
 
@@ -286,7 +288,8 @@ def draw_movie(ep: dict, info: dict, path, title_source: Optional[Policy] = None
     steps = np.arange(T + 1)
     ax_d.set_title("distance to goal", fontsize=9)
     ax_d.axhline(tol, ls="--", color="tab:green", lw=1)
-    ax_d.text(T, tol, " tolerance", fontsize=6, va="bottom", ha="right", color="tab:green")
+    ax_d.text(0.98, tol, "tolerance", fontsize=6, va="bottom", ha="right", color="tab:green",
+              transform=ax_d.get_yaxis_transform())
     ax_d.set_xlim(0, max(T, 1))
     ax_d.set_ylim(0, max(float(dist.max()), tol) * 1.1)
     ax_d.set_xlabel("step", fontsize=8, labelpad=1)
@@ -300,7 +303,8 @@ def draw_movie(ep: dict, info: dict, path, title_source: Optional[Policy] = None
         ax_4.set_title(info["angle_name"], fontsize=9)
         ax_4.set_ylabel("rad", fontsize=8, labelpad=1)
         ax_4.axhline(info["success_angle"], ls="--", color="tab:green", lw=1)
-        ax_4.text(T, info["success_angle"], " success below", fontsize=6, va="bottom", ha="right", color="tab:green")
+        ax_4.text(0.98, info["success_angle"], "success below", fontsize=6, va="bottom", ha="right",
+                  color="tab:green", transform=ax_4.get_yaxis_transform())
         ax_4.set_ylim(min(0.0, float(angle.min())) - 0.02, max(float(angle.max()), info["success_angle"]) * 1.1)
         lines4 = [ax_4.plot([], [], "-", color="tab:orange", lw=1.2)[0]]
         series4 = [angle]

@@ -65,6 +65,10 @@ def load_checkpoint(run_dir: Path) -> dict:
 
 # --------------------------------------------------------------------------- the run
 class Trainer:
+    # called as progress_hook(out_dir, env_steps, total_steps) after every env step when set (a callable
+    # object, or a staticmethod): the sweep's progress file, experiment/backends.py: ProgressFile
+    progress_hook = None
+
     def __init__(self, cfg: RunConfig, out_dir, init_from=None, carry_replay: bool = False,
                  show_progress: bool = True, keep_replay: bool = False):
         from .methods import make_method  # late: methods import replay pieces
@@ -292,6 +296,8 @@ class Trainer:
                 asm.append(flat=flat, action=action, reward=rew, next_flat=nxt, terminated=term, success=succ)
                 self.env_steps += N
                 bar.update(N)
+                if self.progress_hook is not None:
+                    self.progress_hook(self.out, self.env_steps, cfg.total_steps)
                 flat = nxt
                 for i in np.flatnonzero(ended):
                     self._store(self._episode(asm.pop(i)))

@@ -8,7 +8,12 @@ from typing import Optional
 
 import pytest
 
-from maniskill_dualher import methods, report, sweep
+import json
+
+from maniskill_dualher import methods
+from maniskill_dualher.analysis.plots import color_of
+from maniskill_dualher.config import TASKS
+from maniskill_dualher.experiment import sweep
 from maniskill_dualher.replay.base import Batch, Episode
 from maniskill_dualher.replay.her import episode_transitions
 from maniskill_dualher.replay.method import BufferMethod
@@ -46,10 +51,17 @@ def _rows(path):
         return list(csv.DictReader(f))
 
 
-def test_a_registered_method_takes_part_everywhere(registered, tmp_path, monkeypatch):
+def _collect_labels(monkeypatch):
+    """Labels of every curve drawn into a figure."""
+    from maniskill_dualher.analysis import plots
     labels = []
-    plot = report._plot_groups
-    monkeypatch.setattr(report, "_plot_groups", lambda ax, groups, *a: (labels.extend(groups), plot(ax, groups, *a)))
+    draw = plots.draw
+    monkeypatch.setattr(plots, "draw", lambda ax, groups, *a, **k: (labels.extend(groups), draw(ax, groups, *a, **k)))
+    return labels
+
+
+def test_a_registered_method_takes_part_everywhere(registered, tmp_path, monkeypatch):
+    labels = _collect_labels(monkeypatch)
     out = tmp_path / "sweep"
     rc = sweep.main(["--preset", "smoke", "--out", str(out), "--backend", "inline", "--seeds", "1",
                      "--methods", "sac_her,sac_her_per", "--experiments", "single,transfer,scratch",
@@ -58,12 +70,45 @@ def test_a_registered_method_takes_part_everywhere(registered, tmp_path, monkeyp
     single = _rows(out / "single_task.csv")
     assert {r["method"] for r in single} == {"sac_her", "sac_her_per"}
     t5 = _rows(out / "table5_multitask.csv")
-    assert {(r["chain"], r["method"]) for r in t5 if r["method"] == "sac_her"} == {
-        (" > ".join(sweep.protocol.TRANSFER_ORDER), "sac_her"), (report.SCRATCH, "sac_her")}
-    assert "sac_her" in labels and f"sac_her {report.SCRATCH}" in labels   # Fig. 4 and Fig. 5 curves
-    assert report.color_of("sac_her") == "tab:green"
+    assert {(r["experiment"], r["chain"]) for r in t5 if r["method"] == "sac_her"} == {
+        ("transfer", " > ".join(TASKS)), ("scratch", TASKS[-1])}
+    assert "sac_her" in labels and "sac_her from scratch" in labels   # Fig. 4 and Fig. 5 curves
+    assert color_of("sac_her") == "tab:green"
     assert "sac_her" in (out / "summary.md").read_text()
-    assert list((out / "runs" / "transfer").glob("sac_her-s0/stage2-*"))
+    assert list((out / "runs" / "chain").glob("sac_her-s0/stage2-*"))
+
+
+def test_an_experiment_with_arms_is_one_registry_entry(tmp_path, monkeypatch):
+    """Two adaptation arms (E off, warm start) beside the paper's arm, in one entry: shared source stages,
+    rows in the tables, curves in a figure, and a claim comparing two arms in claims.csv."""
+    from maniskill_dualher.analysis import claims
+    from maniskill_dualher.experiment import registry
+    exp = registry.Experiment("my_ablation", "E off vs warm start", "chain", methods=("dual_buffer",), arms=(
+        registry.Arm("paper"), registry.Arm("e_off", ("adapt.replay.ratio=1/0",)),
+        registry.Arm("warm", ("adapt.sac.random_steps=0",))))
+    monkeypatch.setitem(registry.EXPERIMENTS, exp.name, exp)
+    claim = claims.Claim("mine", "E off > paper", "", "successful_train_episodes",
+                         claims.Side("my_ablation", "e_off", "dual_buffer"),
+                         claims.Side("my_ablation", "paper", "dual_buffer"), group="ablation")
+    monkeypatch.setattr(claims, "CLAIMS", claims.CLAIMS + [claim])
+    labels = _collect_labels(monkeypatch)
+    out = tmp_path / "sweep"
+    assert sweep.main(["--preset", "smoke", "--out", str(out), "--backend", "inline", "--seeds", "2",
+                       "--methods", "dual_buffer", "--experiments", "my_ablation"]) == 0
+    runs = sorted(p.parent.name for p in (out / "runs").rglob("config.json"))
+    assert len(runs) == 2 * (2 + 3)          # per seed: two shared source stages, three adaptations
+    cells = [json.loads(p.read_text()) for p in (out / "runs").rglob("cell.json")]
+    assert {c["arm"] for cs in cells for c in cs["cells"]} == {"paper", "e_off", "warm"}
+    abl = _rows(out / "ablations.csv")
+    assert {r["arm"] for r in abl} == {"paper", "e_off", "warm"}
+    cfgs = {json.loads((p.parent / "cell.json").read_text())["cells"][0]["arm"]: json.loads(p.read_text())
+            for p in (out / "runs").rglob("config.json") if p.parent.name.startswith("stage2")}
+    assert cfgs["e_off"]["replay"]["ratio"] == [1.0, 0.0] and cfgs["warm"]["sac"]["random_steps"] == 0
+    assert cfgs["paper"]["replay"]["ratio"] == [0.6, 0.4] and cfgs["paper"]["sac"]["random_steps"] == 100
+    assert {"dual_buffer e_off", "dual_buffer warm"} <= set(labels)
+    assert (out / "fig6_ablations.png").is_file()
+    row = next(r for r in _rows(out / "claims.csv") if r["claim"] == "mine")
+    assert row["n_a"] == "2" and row["n_b"] == "2" and row["side_a"] == "dual_buffer my_ablation/e_off"
 
 
 def test_unknown_method_names_the_registry(capsys):
@@ -110,4 +155,38 @@ def test_no_import_circles_among_core_modules():
 
     for m in graph:
         visit(m, [])
-    assert "maniskill_dualher.sweep" not in graph["maniskill_dualher.report"]
+    assert not any(m.startswith("maniskill_dualher.experiment") or m == "maniskill_dualher.train"
+                   for a in graph if a.startswith("maniskill_dualher.analysis") for m in graph[a])
+
+
+def test_analysis_needs_no_torch_no_simulator():
+    """The analysis wing (scores, statistics, claims, plots) and every project module it imports load neither
+    torch, the simulator, train nor the backends at import time: a results folder can be rebuilt and checked
+    with numpy/scipy/matplotlib. (The package's __init__ registers the ManiSkill tasks, as documented.)"""
+    files = {".".join(p.relative_to(REPO).with_suffix("").parts): p
+             for p in (REPO / "maniskill_dualher").rglob("*.py") if p.name != "__init__.py"}
+
+    def top_level(path):
+        out = set()
+        for node in ast.parse(path.read_text()).body:
+            if isinstance(node, ast.Import):
+                out |= {a.name for a in node.names}
+            elif isinstance(node, ast.ImportFrom):
+                mod = ".".join(path.relative_to(REPO).with_suffix("").parts)
+                base = mod.split(".")[: -node.level] if node.level else []
+                name = ".".join(base + ([node.module] if node.module else []))
+                out |= {name} | {f"{name}.{a.name}" for a in node.names}
+        return out
+
+    seen, todo = set(), [m for m in files if m.startswith("maniskill_dualher.analysis")]
+    while todo:
+        m = todo.pop()
+        if m in seen:
+            continue
+        seen.add(m)
+        imps = top_level(files[m])
+        bad = {i for i in imps if i.split(".")[0] in ("torch", "sapien", "mani_skill", "gymnasium")}
+        bad |= {i for i in imps if i in ("maniskill_dualher.train", "maniskill_dualher.experiment.backends")}
+        assert not bad, f"{m} imports {sorted(bad)}"
+        todo += [i for i in imps if i in files]
+    assert "maniskill_dualher.analysis.report" in seen and "maniskill_dualher.config" in seen

@@ -1,41 +1,46 @@
-"""report.py on hand-made run folders (no training): numbers, grouping, findings, robustness."""
+"""The analysis wing on hand-made run folders (no training): scores, tables, claims, rebuilds from
+scores alone, refusals that protect committed results."""
 from __future__ import annotations
 
 import csv
 import json
-import math
+import shutil
 from pathlib import Path
 
-import numpy as np
 import pytest
 
-from maniskill_dualher import protocol, report
-from maniskill_dualher.config import ReplayConfig, RunConfig
+from maniskill_dualher import report
+from maniskill_dualher.analysis import claims as claims_mod
+from maniskill_dualher.config import TASKS, ReplayConfig, RunConfig
+
+CHAIN = " > ".join(TASKS)
 
 
-def _write_run(folder: Path, cfg: RunConfig, successes, returns, stage=None, done=True, wall=1.0):
-    """A run folder as train.py leaves it: config.json, metrics.csv (one row per eval), done.json."""
+def _write_run(folder: Path, cfg: RunConfig, successes, returns, cells, done=True, wall=1.0, start=False):
+    """A run folder as train.py and the sweep leave it: config.json, metrics.csv, cell.json, done.json."""
     folder.mkdir(parents=True)
     (folder / "config.json").write_text(cfg.to_json())
-    rows = [{"env_steps": 100 * (i + 1), "eval_return": r, "eval_success_rate": r / 10, "train_episodes": 2 * (i + 1),
-             "train_successes": s, "wall_time_s": wall * (i + 1)} for i, (s, r) in enumerate(zip(successes, returns))]
+    steps = [0] * start + [100 * (i + 1) for i in range(len(successes) - start)]
+    rows = [{"env_steps": st, "eval_return": r, "eval_success_rate": r / 10, "train_episodes": 2 * (i + 1),
+             "train_successes": s, "wall_time_s": wall * (i + 1)}
+            for i, (st, s, r) in enumerate(zip(steps, successes, returns))]
     with open(folder / "metrics.csv", "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(rows[0]))
         w.writeheader()
         w.writerows(rows)
-    if stage is not None:
-        (folder / "stage.json").write_text(json.dumps(stage))
+    (folder / "cell.json").write_text(json.dumps({"cells": cells}))
     if done:
         (folder / "done.json").write_text(json.dumps({"final": rows[-1]}))
 
 
-def _adapt_stage():
-    return {"stage": 2, "n_stages": 3, "adaptation": True, "chain": list(protocol.TRANSFER_ORDER),
-            "parent": "p", "carry_replay": True}
+def _cell(exp, arm, task, method, seed, role="adapt", chain=CHAIN, variant="", stage=2):
+    return {"experiment": exp, "arm": arm, "task": task, "chain": chain, "method": method, "variant": variant,
+            "seed": seed, "stage": stage, "n_stages": 3, "role": role, "parent": None}
 
 
 def _cfg(env, method, seed, ratio=(0.6, 0.4), steps=300):
-    return RunConfig(env_id=env, method=method, seed=seed, total_steps=steps, replay=ReplayConfig(ratio=ratio))
+    return RunConfig(env_id=env, method=method, seed=seed, total_steps=steps, eval_every=100,
+                     replay=ReplayConfig(ratio=ratio))
 
 
 @pytest.fixture
@@ -46,15 +51,22 @@ def folder(tmp_path):
              ("dual_buffer", (0.5, 0.5)): [4, 6, 8]}
     for (method, ratio), finals in adapt.items():
         for seed, final in enumerate(finals):
-            _write_run(out / f"runs/transfer/{method}-s{seed}/stage2-{ratio[0]}", _cfg("CloseMicrowave-v1", method, seed,
-                       ratio), [0, final], [0.0, final / 2], stage=_adapt_stage())
-    # a source stage: never in the tables
-    _write_run(out / "runs/transfer/sac_her_per-s0/stage0", _cfg("ReachTarget-v1", "sac_her_per", 0), [99], [9.0],
-               stage={**_adapt_stage(), "stage": 0, "adaptation": False})
+            r = "/".join(f"{x:g}" for x in ratio)
+            variant = r if method == "dual_buffer" else ""
+            cells = [_cell("ratios", r, "CloseMicrowave-v1", method, seed, variant=variant)] \
+                if method == "dual_buffer" else []
+            if ratio == (0.6, 0.4):
+                cells.append(_cell("transfer", "paper", "CloseMicrowave-v1", method, seed, variant=variant))
+            _write_run(out / f"runs/chain/{method}-s{seed}/stage2-{ratio[0]}", _cfg("CloseMicrowave-v1", method, seed,
+                       ratio), [0, final], [0.0, final / 2], cells)
+    # a source stage: never in the adaptation tables
+    _write_run(out / "runs/chain/sac_her_per-s0/stage0", _cfg("ReachTarget-v1", "sac_her_per", 0), [99], [9.0],
+               [_cell("transfer", "paper", "ReachTarget-v1", "sac_her_per", 0, role="source", stage=0)])
     for method, vals in (("sac", [0.0, 1.0, 2.0]), ("dual_buffer", [5.0, 6.0, 7.0])):
         for seed, v in enumerate(vals):
             _write_run(out / f"runs/single/CloseBox-v1-{method}-s{seed}", _cfg("CloseBox-v1", method, seed),
-                       [1, 2], [0.0, v])
+                       [1, 2], [0.0, v], [_cell("single", "paper", "CloseBox-v1", method, seed, role="single",
+                                                chain="", stage=0, variant="0.6/0.4" if method == "dual_buffer" else "")])
     return out
 
 
@@ -68,94 +80,163 @@ def test_tables_hold_the_final_rows_aggregated_over_seeds(folder):
     t5 = {(r["method"], r["metric"]): r for r in _table(folder / "table5_multitask.csv")}
     row = t5[("dual_buffer", "successful_train_episodes")]
     assert (row["n_seeds"], row["seeds"], float(row["mean"]), float(row["std"])) == ("3", "0 1 2", 12.0, 2.0)
-    assert row["paper"] == "250" and row["ratio"] == "0.6/0.4" and row["env_steps"] == "300"
-    assert 10 <= float(row["ci95_low"]) < 12 < float(row["ci95_high"]) <= 14
+    assert row["paper"] == "250" and row["variant"] == "0.6/0.4" and row["experiment"] == "transfer"
+    assert 6 < float(row["ci95_low"]) < 12 < float(row["ci95_high"]) < 18    # t interval, 2 dof
     # mean over each run's evaluations (area under the curve): returns [0, 0.5], [0, 1], [0, 1.5]
     assert float(t5[("sac_her_per", "mean_eval_return")]["mean"]) == 0.5
     assert t5[("sac_her_per", "successful_train_episodes")]["paper"] == "<45"
-    assert ("dual_buffer", "successful_train_episodes") in t5 and len(t5) == 8  # 0.5/0.5 is Table 4's only
     t4 = _table(folder / "table4_sampling_ratio.csv")
-    assert [(r["ratio"], float(r["mean"]), r["paper"]) for r in t4] == [("0.5/0.5", 6.0, "154"), ("0.6/0.4", 12.0, "250")]
+    assert [(r["arm"], float(r["mean"]), r["paper"]) for r in t4] == [("0.5/0.5", 6.0, "154"), ("0.6/0.4", 12.0, "250")]
     single = {(r["method"], r["metric"]): r for r in _table(folder / "single_task.csv")}
     assert float(single[("dual_buffer", "mean_eval_return")]["mean"]) == 3.0   # curves [0, 5], [0, 6], [0, 7]
     assert float(single[("sac", "final_eval_success_rate")]["mean"]) == pytest.approx(0.1)
     assert {r["task"] for r in single.values()} == {"CloseBox-v1"}          # the source stage is not a single run
 
 
+def test_scores_are_one_row_per_run_cell_and_metric(folder):
+    report.build_report(folder)
+    scores = _table(folder / "scores.csv")
+    shared = [r for r in scores if r["run"].endswith("dual_buffer-s1/stage2-0.6")
+              and r["metric"] == "successful_train_episodes"]
+    assert {(r["experiment"], r["arm"], r["value"]) for r in shared} == {("ratios", "0.6/0.4", "12"),
+                                                                         ("transfer", "paper", "12")}
+    curves = _table(folder / "curves.csv")
+    assert {r["env_steps"] for r in curves if r["run"].endswith("sac_her_per-s0/stage2-0.6")} == {"100", "200"}
+
+
 def test_claims_are_computed_from_the_numbers(folder):
     report.build_report(folder)
     claims = {r["claim"]: r for r in _table(folder / "claims.csv")}
-    assert list(claims) == ["a", "b", "c", "d", "e", "f", "g", "h", "h'"]
+    assert list(claims)[:9] == ["a", "b", "c", "d", "e", "f", "g", "h", "h'"]
     a = claims["a"]  # dual 10, 12, 14 vs sac_her_per 1, 2, 3 successful adaptation episodes
     assert (float(a["mean_a"]), float(a["mean_b"]), float(a["diff"])) == (12.0, 2.0, 10.0)
-    assert 0 < float(a["diff_ci95_low"]) < 10 < float(a["diff_ci95_high"]) and a["verdict"] == "reproduced"
-    assert float(a["prob_improvement"]) == 1.0
+    assert float(a["diff_ci95_low"]) < 10 < float(a["diff_ci95_high"]) and a["verdict"] == "reproduced"
+    assert float(a["welch_ci95_low"]) > 0 and float(a["prob_improvement"]) == 1.0
     assert claims["c"]["verdict"] == "reproduced"         # 0.6/0.4: 10..14 vs 0.5/0.5: 4..8
     assert claims["d"]["verdict"].startswith("not measured")  # no 0.7/0.3 runs
     assert claims["f"]["verdict"] == "reproduced"         # CloseBox curves: dual [0, 5..7] vs sac [0, 0..2]
     assert claims["e"]["verdict"].startswith("not measured")
     assert claims["h"]["verdict"].startswith("not measured")  # no from-scratch control in this folder
+    assert all(claims[k]["verdict"].startswith("not measured") for k in ("e_off", "warm_a"))
     s = (folder / "summary.md").read_text()
     line = next(ln for ln in s.splitlines() if ln.startswith("| a |"))
     assert "**reproduced**" in line and "Table 5: 250 vs <45" in line
-    assert "compare directions and ratios" in s
+    assert "compare directions" in s and "claims were tested" in s
 
 
 def test_scratch_control_sits_beside_transfer(folder):
-    """The from-scratch control enters Table 5 as its own chain and decides claim (h)."""
+    """The from-scratch control enters Table 5 as its own experiment and decides claim (h)."""
     for seed, final in enumerate([3, 4, 5]):
         cfg = _cfg("CloseMicrowave-v1", "dual_buffer", seed)
-        _write_run(folder / f"runs/scratch/dual_buffer-s{seed}/stage0", cfg, [0, final], [0.0, 0.2],
-                   stage={"protocol": "scratch", "stage": 0, "n_stages": 1, "adaptation": True,
-                          "chain": ["CloseMicrowave-v1"], "parent": None, "carry_replay": True})
+        _write_run(folder / f"runs/chain/dual_buffer-s{seed}/stage0-scratch", cfg, [0, final], [0.0, 0.2],
+                   [_cell("scratch", "paper", "CloseMicrowave-v1", "dual_buffer", seed, chain="CloseMicrowave-v1",
+                          variant="0.6/0.4", stage=0)])
     report.build_report(folder)
     t5 = _table(folder / "table5_multitask.csv")
-    chains = {(r["chain"], r["method"]) for r in t5}
-    assert (report.SCRATCH, "dual_buffer") in chains and (" > ".join(protocol.TRANSFER_ORDER), "dual_buffer") in chains
-    assert all(r["chain"] != report.SCRATCH for r in _table(folder / "table4_sampling_ratio.csv"))
+    assert {("scratch", "dual_buffer"), ("transfer", "dual_buffer")} <= {(r["experiment"], r["method"]) for r in t5}
+    assert all(r["experiment"] == "ratios" for r in _table(folder / "table4_sampling_ratio.csv"))
     h = {r["claim"]: r for r in _table(folder / "claims.csv")}["h"]
     assert (float(h["mean_a"]), float(h["mean_b"])) == (12.0, 4.0) and h["verdict"] == "reproduced"
 
 
-def test_bootstrap_is_seeded_and_brackets_the_mean():
-    x = [0.0, 1.0, 5.0, 2.0]
-    assert report.bootstrap_ci(x) == report.bootstrap_ci(x)
-    lo, hi = report.bootstrap_ci(x)
-    assert 0.0 <= lo < np.mean(x) < hi <= 5.0
-    one = report.summarize([3.0])
-    assert one["ci95_low"] == one["ci95_high"] == 3.0 and math.isnan(one["std"])
+def test_step0_evaluation_gives_the_prior_and_the_dip(tmp_path):
+    """A run evaluated at env step 0 (eval_at_start): the step-0 score is the prior's, it is left out of the
+    area under the curve, and the fall below it is the fine-tuning dip."""
+    out = tmp_path / "s"
+    cfg = _cfg("CloseMicrowave-v1", "sac_her_per", 0)
+    # eval success 0.5 at step 0, 0.1 at 100, 0.3 at 200, 0.6 at 300
+    _write_run(out / "runs/r", cfg, [0, 1, 2, 12], [5.0, 1.0, 3.0, 6.0],
+               [_cell("transfer", "paper", "CloseMicrowave-v1", "sac_her_per", 0)], start=True)
+    report.build_report(out)
+    scores = {r["metric"]: float(r["value"]) for r in _table(out / "scores.csv")}
+    assert scores["step0_eval_success_rate"] == 0.5
+    assert scores["mean_eval_success_rate"] == pytest.approx((0.1 + 0.3 + 0.6) / 3)
+    assert scores["dip_depth"] == pytest.approx(0.4) and scores["dip_length"] == 300
+    assert scores["steps_to_10_successes"] == 300 and scores["train_success_rate"] == pytest.approx(12 / 8)
 
 
 def test_wall_time_and_unfinished_runs_do_not_change_tables(folder):
     report.build_report(folder)
-    before = {n: (folder / n).read_bytes() for n in ("table4_sampling_ratio.csv", "table5_multitask.csv",
-                                                      "single_task.csv")}
+    names = ("table4_sampling_ratio.csv", "table5_multitask.csv", "single_task.csv", "claims.csv", "scores.csv")
+    before = {n: (folder / n).read_bytes() for n in names}
     # other wall times (a resumed run) and an unfinished run: same tables
     for m in folder.glob("runs/single/*/metrics.csv"):
         m.write_text(m.read_text().replace(",1.0\n", ",77.5\n"))
-    _write_run(folder / "runs/single/CloseBox-v1-sac-s9", _cfg("CloseBox-v1", "sac", 9), [50], [50.0], done=False)
+    _write_run(folder / "runs/single/CloseBox-v1-sac-s9", _cfg("CloseBox-v1", "sac", 9), [50], [50.0],
+               [_cell("single", "paper", "CloseBox-v1", "sac", 9, role="single", chain="")], done=False)
     report.build_report(folder)
-    assert {n: (folder / n).read_bytes() for n in before} == before
+    assert {n: (folder / n).read_bytes() for n in names} == before
     assert "1 runs unfinished" in (folder / "summary.md").read_text()
     assert not list(folder.glob(".*.tmp")) and not list(folder.glob(".*.png"))   # atomic writes leave no temp files
 
 
-def test_sweep_json_selects_the_runs(folder):
-    runs = sorted(str(p.parent.relative_to(folder)) for p in folder.rglob("config.json") if "single" in str(p))
-    (folder / "sweep.json").write_text(json.dumps({"preset": "unit", "runs": runs}))
+def test_rebuild_from_scores_alone_is_byte_identical(folder, tmp_path):
+    """A results folder without run folders (what is committed): the report rebuilds claims.csv and every
+    table byte-identical from scores.csv and curves.csv."""
     report.build_report(folder)
-    assert _table(folder / "table5_multitask.csv") == []
-    assert len(_table(folder / "single_task.csv")) == 8  # 2 methods x 4 metrics
-    assert (folder / "summary.md").read_text().startswith("# Results: unit")
-    assert (folder / "fig4_single_task.png").is_file()
+    copy = tmp_path / "committed"
+    copy.mkdir()
+    for f in folder.iterdir():
+        if f.is_file():
+            shutil.copy2(f, copy / f.name)
+    (copy / "claims.csv").unlink()
+    (copy / "table5_multitask.csv").write_text("stale\n")
+    assert report.main([str(copy)]) == 0
+    for name in ("claims.csv", "table5_multitask.csv", "table4_sampling_ratio.csv", "single_task.csv",
+                 "scores.csv", "curves.csv"):
+        assert (copy / name).read_bytes() == (folder / name).read_bytes(), name
+    assert (copy / "fig5_multitask.png").is_file()
 
 
-def test_hyperparameters_put_ours_beside_table3(folder):
+def test_report_never_replaces_scores_with_less(folder, tmp_path, capsys):
+    """A folder whose scores.csv names runs it no longer has (a committed reference with a few runs made
+    beside it): refused, one line, exit 2, nothing changed."""
+    report.build_report(folder)
+    for d in list(folder.glob("runs/single/*"))[:2]:
+        shutil.rmtree(d)
+    before = {p: p.read_bytes() for p in folder.rglob("*") if p.is_file()}
+    assert report.main([str(folder)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "refusing to replace it with less" in err[0]
+    assert {p: p.read_bytes() for p in folder.rglob("*") if p.is_file()} == before
+
+
+def test_folder_without_finished_runs_or_scores_is_refused(tmp_path, capsys):
+    """The documented command on a folder it cannot rebuild exits 2 and writes nothing."""
+    out = tmp_path / "x"
+    _write_run(out / "runs/r", _cfg("CloseBox-v1", "sac", 0), [1], [1.0],
+               [_cell("single", "paper", "CloseBox-v1", "sac", 0, role="single", chain="")], done=False)
+    (out / "claims.csv").write_text("committed\n")
+    before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    assert report.main([str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "nothing to report" in err[0]
+    assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
+
+
+def test_reference_curves_are_overlaid(folder, tmp_path, monkeypatch):
+    from maniskill_dualher.analysis import plots
+    report.build_report(folder)
+    ref = tmp_path / "ref"
+    shutil.copytree(folder, ref, ignore=shutil.ignore_patterns("runs"))
+    seen = []
+    draw = plots.draw
+    monkeypatch.setattr(plots, "draw", lambda ax, g, *a, **k: (seen.append(bool(k.get("reference") or
+                                                                                 (len(a) > 4 and a[4]))),
+                                                              draw(ax, g, *a, **k)))
+    assert report.main([str(folder), "--reference", str(ref)]) == 0
+    assert any(seen)
+    assert report.main([str(folder), "--reference", str(tmp_path / "nope")]) == 2
+
+
+def test_hyperparameters_put_ours_beside_table3_per_stage(folder):
     report.build_report(folder)
     hp = {r["hyperparameter"]: r for r in _table(folder / "hyperparameters.csv")}
     assert hp["learning rate"]["paper"] == "0.0001" and hp["batch size"]["ours_single_task"] == "256"
-    assert hp["dual buffer sampling ratio P(R)/P(E)"]["ours_transfer"] == "0.5/0.5; 0.6/0.4"
-    assert hp["replay memory size"]["paper"] == "10^7"
+    assert hp["dual buffer sampling ratio P(R)/P(E)"]["ours_adaptation"] == "0.5/0.5; 0.6/0.4"
+    assert hp["SAC entropy temperature alpha"]["ours_adaptation"].startswith("carried from the previous stage")
+    assert hp["SAC entropy temperature alpha"]["ours_source_stages"].startswith("0.005")
+    assert hp["optimizer at the start"]["ours_adaptation"] == "fresh Adam (not carried)"
 
 
 def test_plots_are_written(folder):
@@ -165,10 +246,20 @@ def test_plots_are_written(folder):
         assert (folder / name).read_bytes()[:4] == b"\x89PNG"
 
 
-def test_cli_on_missing_or_empty_folder(tmp_path, capsys):
+def test_cli_on_missing_folder(tmp_path, capsys):
     assert report.main([str(tmp_path / "nope")]) == 2
     assert capsys.readouterr().err.strip().startswith("error: no such folder")
     assert report.main([str(tmp_path)]) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "no run folders" in err[0]
     assert list(tmp_path.iterdir()) == []
+
+
+def test_every_claim_names_a_metric_and_cells_that_exist():
+    from maniskill_dualher.analysis.runs import METRICS
+    from maniskill_dualher.experiment.registry import EXPERIMENTS
+    keys = [c.key for c in claims_mod.CLAIMS]
+    assert len(keys) == len(set(keys))
+    for c in claims_mod.CLAIMS:
+        assert c.metric in METRICS, c.key
+        for side in (c.a, c.b):
+            assert side.experiment in EXPERIMENTS, (c.key, side)
+            assert side.arm in {a.name for a in EXPERIMENTS[side.experiment].arms}, (c.key, side)

@@ -180,12 +180,10 @@ def test_bf16_update_learns_the_point_task(tmp_path):
 def test_fastest_settings_solve_the_tasks_at_256x256(tmp_path, task):
     """Learning check of the fastest settings at the size where they pay (bf16 hidden products + compile,
     256x256): the quick preset's other settings reach >= 0.9 evaluation success within its budget."""
-    from maniskill_dualher.sweep import PRESETS, base_config
+    from maniskill_dualher.experiment.presets import PRESETS
     from maniskill_dualher.train import run_training
     from test_train import read_rows
-    b = PRESETS["quick"]
-    cfg = base_config(b, "sac_her_per", 0)
-    cfg.env_id, cfg.total_steps = task, b.single_steps[task]
+    cfg = PRESETS["quick"].single_config("sac_her_per", 0, task)
     cfg.sac.hidden, cfg.sac.matmul_precision, cfg.sac.compile = (256, 256), "bf16", True
     run_training(cfg, tmp_path / task, show_progress=False)
     rows = read_rows(tmp_path / task / "metrics.csv")

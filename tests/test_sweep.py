@@ -17,12 +17,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from maniskill_dualher import protocol, rundir, sweep
-from maniskill_dualher.config import ReplayConfig, RunConfig, SACConfig
+from maniskill_dualher import rundir
+from maniskill_dualher.config import TASKS, ReplayConfig, RunConfig, SACConfig
+from maniskill_dualher.experiment import protocol, sweep
+from maniskill_dualher.experiment.backends import run_grid
+from maniskill_dualher.experiment.grid import build_grid
 
 REPO = Path(__file__).resolve().parents[1]
-TABLES = ["table4_sampling_ratio.csv", "table5_multitask.csv", "single_task.csv"]
-OUTPUTS = TABLES + ["hyperparameters.csv", "fig4_single_task.png", "fig5_multitask.png", "summary.md"]
+TABLES = ["table4_sampling_ratio.csv", "table5_multitask.csv", "single_task.csv", "ablations.csv"]
+OUTPUTS = TABLES + ["hyperparameters.csv", "fig4_single_task.png", "fig5_multitask.png", "summary.md", "scores.csv",
+                    "curves.csv", "claims.csv"]
 METRIC_KEYS = {"successful_train_episodes": "train_successes", "final_eval_success_rate": "eval_success_rate",
                "final_eval_return": "eval_return"}
 CURVE_KEYS = {"mean_eval_success_rate": "eval_success_rate", "mean_eval_return": "eval_return"}
@@ -52,7 +56,7 @@ def smoke_local(tmp_path_factory):
 
 # ----------------------------------------------------------------------------- recomputation
 def _recompute(out: Path) -> dict:
-    """Independently of report.py: group finished runs, aggregate the final metrics rows."""
+    """Independently of the analysis code: group finished runs by their cells, keep their metrics rows."""
     runs = json.loads((out / "sweep.json").read_text())["runs"]
     groups = defaultdict(list)
     for rel in runs:
@@ -60,47 +64,50 @@ def _recompute(out: Path) -> dict:
         cfg = json.loads((d / "config.json").read_text())
         with open(d / "metrics.csv", newline="") as f:
             rows = list(csv.DictReader(f))
-        stage = json.loads((d / "stage.json").read_text()) if (d / "stage.json").exists() else None
-        if stage is None:
-            kind, chain = "single", ""
-        elif stage["adaptation"]:
-            kind = "adaptation"
-            chain = "from scratch" if stage["protocol"] == "scratch" else " > ".join(stage["chain"])
-        else:
-            continue
-        ratio = "/".join(f"{x:g}" for x in cfg["replay"]["ratio"]) if cfg["method"] == "dual_buffer" else ""
-        groups[(kind, cfg["env_id"], chain, cfg["method"], ratio)].append((cfg["seed"], rows, cfg["total_steps"]))
+        for c in json.loads((d / "cell.json").read_text())["cells"]:
+            key = tuple(str(c[k]) for k in ("experiment", "arm", "task", "chain", "method", "variant", "role"))
+            groups[key].append((c["seed"], rows, cfg["total_steps"]))
     return groups
 
 
+def _score(metric: str, rows: list, total: int) -> float:
+    last = rows[-1]
+    trained = [r for r in rows if float(r["env_steps"]) > 0] or rows
+    if metric in CURVE_KEYS:  # mean over the run's evaluations after training began
+        return float(np.mean([float(r[CURVE_KEYS[metric]]) for r in trained]))
+    if metric in METRIC_KEYS:  # the run's last evaluation row
+        return float(last[METRIC_KEYS[metric]])
+    if metric == "train_success_rate":
+        return float(last["train_successes"]) / max(1.0, float(last["train_episodes"]))
+    if metric == "steps_to_10_successes":
+        hit = [float(r["env_steps"]) for r in rows if float(r["train_successes"]) >= 10]
+        return hit[0] if hit else float(total)
+    raise KeyError(metric)
+
+
 def _check_row(row: dict, members: list) -> None:
+    from scipy import stats as st
     members = sorted(members, key=lambda m: m[0])
-    if row["metric"] in CURVE_KEYS:  # mean over the run's evaluations
-        vals = np.array([np.mean([float(r[CURVE_KEYS[row["metric"]]]) for r in m[1]]) for m in members])
-    else:  # the run's last evaluation row
-        vals = np.array([float(m[1][-1][METRIC_KEYS[row["metric"]]]) for m in members])
+    vals = np.array([_score(row["metric"], m[1], m[2]) for m in members])
     assert int(row["n_seeds"]) == len(vals)
     assert row["seeds"] == " ".join(str(m[0]) for m in members)
-    assert int(row["env_steps"]) == members[0][2]
     assert float(row["mean"]) == pytest.approx(vals.mean(), rel=1e-5, abs=1e-9)
     if len(vals) > 1:
         assert float(row["std"]) == pytest.approx(vals.std(ddof=1), rel=1e-5, abs=1e-9)
-    boot = vals[np.random.default_rng(0).integers(0, len(vals), (10_000, len(vals)))].mean(1)
-    lo, hi = np.percentile(boot, [2.5, 97.5])
-    assert float(row["ci95_low"]) == pytest.approx(lo, rel=1e-5, abs=1e-9)
-    assert float(row["ci95_high"]) == pytest.approx(hi, rel=1e-5, abs=1e-9)
+        h = st.t.ppf(0.975, len(vals) - 1) * vals.std(ddof=1) / np.sqrt(len(vals))
+        assert float(row["ci95_low"]) == pytest.approx(vals.mean() - h, rel=1e-5, abs=1e-9)
+        assert float(row["ci95_high"]) == pytest.approx(vals.mean() + h, rel=1e-5, abs=1e-9)
 
 
 def assert_tables_match_runs(out: Path) -> None:
     groups = _recompute(out)
-    kinds = {"table4_sampling_ratio.csv": "adaptation", "table5_multitask.csv": "adaptation",
-             "single_task.csv": "single"}
-    for name, kind in kinds.items():
+    for name in TABLES:
         with open(out / name, newline="") as f:
             rows = list(csv.DictReader(f))
-        assert rows, name
+        assert rows or name == "ablations.csv", name
         for row in rows:
-            _check_row(row, groups[(kind, row["task"], row["chain"], row["method"], row["ratio"])])
+            _check_row(row, groups[tuple(row[k] for k in ("experiment", "arm", "task", "chain", "method", "variant",
+                                                          "role"))])
 
 
 def _tables_bytes(out: Path) -> dict:
@@ -117,27 +124,33 @@ def test_smoke_local_end_to_end(smoke_local):
     # 3 tasks x 3 methods x 2 seeds single; 2 methods x 3 stages x 2 seeds transfer; + 2 ratios x 2 seeds;
     # + the from-scratch control: 2 methods x 2 seeds
     assert len(d["runs"]) == 18 + 12 + 4 + 4
-    assert len([r for r in d["runs"] if r.startswith("runs/scratch/")]) == 4
+    cells = {rel: json.loads((out / rel / "cell.json").read_text())["cells"] for rel in d["runs"]}
+    assert sum(any(c["experiment"] == "scratch" for c in cs) for cs in cells.values()) == 4
     assert all(rundir.is_done(out / r) for r in d["runs"])
-    # the ratio study shares the source stages with transfer's dual_buffer chain: one stage0 per seed
-    assert len(list((out / "runs/transfer/dual_buffer-s0").glob("stage0-*"))) == 1
-    assert len(list((out / "runs/transfer/dual_buffer-s0").glob("stage2-*"))) == 3
+    # the ratio study shares the source stages with transfer's dual_buffer chain: one stage0 per seed, and
+    # its 0.6/0.4 adaptation is transfer's run (one folder, two cells)
+    chain = out / "runs/chain/dual_buffer-s0"
+    assert len(list(chain.glob("stage0-ReachTarget*"))) == 1
+    assert len(list(chain.glob("stage2-*"))) == 3
+    shared = json.loads(next(chain.glob("stage2-*-r0.6-0.4-*")).joinpath("cell.json").read_text())["cells"]
+    assert {(c["experiment"], c["arm"]) for c in shared} == {("transfer", "paper"), ("ratios", "0.6/0.4")}
     assert_tables_match_runs(out)
     with open(out / "table4_sampling_ratio.csv", newline="") as f:
-        t4 = {r["ratio"]: r for r in csv.DictReader(f)}
+        t4 = {r["arm"]: r for r in csv.DictReader(f)}
     assert {k: v["paper"] for k, v in t4.items()} == {"0.5/0.5": "154", "0.6/0.4": "250", "0.7/0.3": "<75"}
     with open(out / "table5_multitask.csv", newline="") as f:
         t5 = [r for r in csv.DictReader(f) if r["metric"] == "successful_train_episodes"]
-    assert {(r["chain"], r["method"], r["paper"]) for r in t5} == {
-        (" > ".join(protocol.TRANSFER_ORDER), "sac_her_per", "<45"), (" > ".join(protocol.TRANSFER_ORDER), "dual_buffer", "250"),
-        ("from scratch", "sac_her_per", ""), ("from scratch", "dual_buffer", "")}
+    full = " > ".join(TASKS)
+    assert {(r["experiment"], r["chain"], r["method"], r["paper"]) for r in t5} == {
+        ("transfer", full, "sac_her_per", "<45"), ("transfer", full, "dual_buffer", "250"),
+        ("scratch", TASKS[-1], "sac_her_per", ""), ("scratch", TASKS[-1], "dual_buffer", "")}
     for name in TABLES:  # wall time must stay out of tables (else resumed sweeps differ)
         assert "wall" not in (out / name).read_text()
     summary = (out / "summary.md").read_text()
-    assert "Verdicts" in summary and "154" in summary and "seeds [0, 1]" in summary
-    assert (out / "claims.csv").is_file()
+    assert "Verdicts" in summary and "154" in summary and "38 finished runs" in summary
     hp = (out / "hyperparameters.csv").read_text()
-    assert "HER goals per transition k,\"4 single-task, 8 multi-task\",4,8" in hp
+    assert "HER goals per transition k,\"4 single-task, 8 multi-task\",4,8,8" in hp
+    assert "carried from the previous stage" in hp   # alpha of stages that start from a prior
 
 
 def test_report_numbers_come_from_metrics(smoke_local, tmp_path):
@@ -147,17 +160,17 @@ def test_report_numbers_come_from_metrics(smoke_local, tmp_path):
     from maniskill_dualher import report
     out = tmp_path / "copy"
     shutil.copytree(smoke_local, out)
-    stage2 = sorted((out / "runs/transfer/dual_buffer-s1").glob("stage2-CloseMicrowave-v1-r0.5-0.5-*"))[0]
+    stage2 = sorted((out / "runs/chain/dual_buffer-s1").glob("stage2-CloseMicrowave-v1-r0.5-0.5-*"))[0]
     with open(stage2 / "metrics.csv", newline="") as f:
         rows = list(csv.DictReader(f))
-    before = {r["ratio"]: r for r in csv.DictReader(open(out / "table4_sampling_ratio.csv"))}
+    before = {r["arm"]: r for r in csv.DictReader(open(out / "table4_sampling_ratio.csv"))}
     rows[-1]["train_successes"] = str(float(rows[-1]["train_successes"]) + 6)
     with open(stage2 / "metrics.csv", "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(rows[0]))
         w.writeheader()
         w.writerows(rows)
     report.build_report(out)
-    after = {r["ratio"]: r for r in csv.DictReader(open(out / "table4_sampling_ratio.csv"))}
+    after = {r["arm"]: r for r in csv.DictReader(open(out / "table4_sampling_ratio.csv"))}
     assert float(after["0.5/0.5"]["mean"]) == pytest.approx(float(before["0.5/0.5"]["mean"]) + 3)
     assert after["0.6/0.4"] == before["0.6/0.4"]
     assert_tables_match_runs(out)
@@ -289,17 +302,22 @@ def test_run_transfer_chains_networks_and_replay(tmp_path):
     (["--task-order", "ReachTarget-v1,Nope-v0"], "unknown task"),
     (["--methods", "ddpg"], "unknown method"),
     (["--experiments", "single,bogus"], "unknown experiment"),
-    (["--ratios", "0.6/0.5"], "summing to 1"),
-    (["--ratios", "1.5/-0.5"], "non-negative"),
-    (["--ratios", "0.5/0.5,half"], "ratio"),
+    (["--set", "replay.ratio=0.6/0.5"], "summing to 1"),
+    (["--set", "adapt.replay.ratio=1.5/-0.5"], "non-negative"),
+    (["--set", "replay.ratio=half"], "ratio"),
+    (["--set", "sac.lr"], "KEY=VALUE"),
+    (["--set", "replay.dual_mod=split"], "unknown setting 'replay.dual_mod'"),
+    (["--set", "replay.dual_mode=both"], "dual_mode"),
+    (["--set", "sac.batch_size=1.5"], "bad value for sac.batch_size"),
+    (["--set", "terminate_on_success=maybe"], "bad value for terminate_on_success"),
     (["--seeds", "-1"], "seed must be >= 0"),
     (["--seeds=0,-2"], "seed must be >= 0"),
     (["--seeds", "a,b"], "--seeds"),
-    (["--budget", "eval_every=0"], "eval_every"),
-    (["--budget", "nosuch=1"], "unknown budget key"),
+    (["--set", "eval_every=0"], "eval_every"),
+    (["--set", "nosuch=1"], "unknown setting"),
     (["--methods", "sac", "--experiments", "ratios"], "needs method dual_buffer"),
     (["--workers", "0"], "--workers"),
-    (["--budget", "num_envs=4"], "physx_cuda"),
+    (["--set", "num_envs=4"], "physx_cuda"),
     (["--ray-address", "auto"], "--backend ray"),
 ])
 def test_bad_input_one_line_exit_2_nothing_written(tmp_path, capsys, args, expect):
@@ -337,7 +355,7 @@ def test_out_folder_of_another_sweep_is_refused(tmp_path, capsys):
 
 def test_cli_bad_input_exit_code_and_single_error_line(tmp_path):
     out = tmp_path / "o"
-    r = _cli("--preset", "smoke", "--ratios", "0.7/0.7", "--out", str(out), timeout=120)
+    r = _cli("--preset", "smoke", "--set", "replay.ratio=0.7/0.7", "--out", str(out), timeout=120)
     assert r.returncode == 2
     # library import warnings (SAPIEN's libvulkan notice) are not ours; our answer is one line
     ours = [ln for ln in r.stderr.splitlines() if ln.strip() and "Warning" not in ln and not ln.startswith("  warn(")]
@@ -345,16 +363,37 @@ def test_cli_bad_input_exit_code_and_single_error_line(tmp_path):
     assert not out.exists()
 
 
-def test_seeds_budget_and_dry_run(tmp_path, capsys):
+def test_seeds_settings_and_dry_run(tmp_path, capsys):
     assert sweep.parse_seeds("3") == (0, 1, 2)
     assert sweep.parse_seeds("4,7") == (4, 7) and sweep.parse_seeds("7,") == (7,)
     out = tmp_path / "o"
     assert sweep.main(["--preset", "smoke", "--out", str(out), "--experiments", "ratios", "--seeds", "1",
-                       "--ratios", "0.5/0.5", "--budget", "single_steps.CloseBox-v1=999", "--dry-run"]) == 0
+                       "--dry-run"]) == 0
     lines = capsys.readouterr().out.strip().splitlines()
-    assert lines[-1] == "3 runs; 450 env steps to go; nothing written (--dry-run)"  # stage0, stage1, 0.5/0.5 adaptation
+    assert lines[-1] == "5 runs; 750 env steps to go; nothing written (--dry-run)"  # 2 sources, 3 adaptations
     assert sum("stage2-CloseMicrowave-v1-r0.5-0.5" in ln for ln in lines) == 1
     assert not out.exists()
+
+
+def test_set_changes_every_run_or_one_stage(tmp_path, capsys):
+    """`--set` reaches any RunConfig field, for every run or (adapt./source./stageN.) one stage of a chain."""
+    args = lambda *extra: sweep.definition_from_args(sweep.make_parser().parse_args(  # noqa: E731
+        ["--preset", "smoke", "--seeds", "1", "--experiments", "single,transfer", *extra]))
+    plain = {n.rel: n for n in build_grid(args())}
+    split = build_grid(args("--set", "replay.dual_mode=split"))
+    assert all(n.cfg.replay.dual_mode == "split" for n in split)
+    assert not {n.rel for n in split} & set(plain)        # a changed setting is a different run
+    staged = build_grid(args("--set", "adapt.sac.random_steps=0", "--set", "source.replay.her_k=2"))
+    for n in staged:
+        if n.stages is None:   # single-task runs: stage settings do not apply
+            assert n.cfg.sac.random_steps == 100 and n.cfg.replay.her_k == 4
+        elif n.stage == 2:
+            assert n.cfg.sac.random_steps == 0 and n.cfg.replay.her_k == 8
+        else:
+            assert n.cfg.sac.random_steps == 100 and n.cfg.replay.her_k == 2
+    assert sweep.main(["--set", "replay.dual_mode=split", "--dry-run", "--out", str(tmp_path / "o")]) == 0
+    out = capsys.readouterr().out
+    assert "96 runs" in out and not (tmp_path / "o").exists()
 
 
 # ----------------------------------------------------------------------------- scheduling
@@ -382,14 +421,14 @@ class _FakeBackend:
 
 def test_run_grid_parents_first_failures_block_descendants(tmp_path, capsys):
     d = sweep.definition_from_args(sweep.make_parser().parse_args(["--preset", "smoke", "--seeds", "1"]))
-    nodes = sweep.build_grid(d)
+    nodes = build_grid(d)
     by = {n.rel: n for n in nodes}
     single = next(n.rel for n in nodes if n.parent is None and n.stages is None)
     (tmp_path / single).mkdir(parents=True)
     (tmp_path / single / "done.json").write_text("{}")                      # finished before: skipped
     stage0 = next(n.rel for n in nodes if n.stages and n.stage == 0 and n.cfg.method == "sac_her_per")
     be = _FakeBackend(tmp_path, fail={stage0})
-    failed = sweep.run_grid(nodes, tmp_path, be, progress=False)
+    failed = run_grid(nodes, tmp_path, be, progress=False)
     assert single not in be.order
     pos = {rel: i for i, rel in enumerate(be.order)}
     for rel in be.order:                                                    # a stage only after its parent
@@ -429,8 +468,8 @@ def test_default_command_on_a_fresh_copy_writes_outside_the_reference(tmp_path):
     env = _env()
     env["PYTHONPATH"] = str(repo)
     proc = subprocess.Popen([sys.executable, "-m", "maniskill_dualher.sweep", "--steps", "60", "--seeds", "1",
-                             "--budget", "eval_every=30", "--budget", "eval_episodes=1",
-                             "--budget", "random_steps=20", "--budget", "learning_starts=20"],
+                             "--set", "eval_every=30", "--set", "eval_episodes=1",
+                             "--set", "sac.random_steps=20", "--set", "sac.learning_starts=20"],
                             cwd=repo, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
         deadline = time.time() + 240

@@ -111,8 +111,9 @@ def summary_md(folder: Path, scores, tables, claims, figures: List[str], n_runs:
         b = sweep["budgets"]
         s.append(f"Budgets (env steps): single-task {b['single']}; source stage {b['source']}; adaptation "
                  f"{b['adapt']} (paper's adaptation: {PAPER_ADAPT_BUDGET}; ours is "
-                 f"{100 * max(b['adapt'].values()) / PAPER_ADAPT_STEPS:.2g}% of it). Our tasks are ManiSkill3 "
-                 "re-creations of the RLBench ones: compare directions, not absolute counts.")
+                 f"{100 * max(b['adapt'].values()) / PAPER_ADAPT_STEPS:.2g}% of it).")
+    s.append("Our tasks are ManiSkill3 re-creations of the RLBench ones and our budgets are far smaller: compare "
+             "directions, not absolute counts.")
     if sweep.get("settings"):
         s.append(f"Settings given to this sweep: `{' '.join(sweep['settings'])}`.")
     s += ["", "Every table, claim and figure here is computed from `scores.csv` (one value per run and metric) and "

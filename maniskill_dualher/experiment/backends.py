@@ -1,19 +1,84 @@
 """Where runs execute: a local process pool, Ray, or inline; and the scheduler that feeds them.
 
 ``run_grid`` starts every unfinished run whose parent is finished, long chains first, and never lets one
-failed run stop the others. A backend has ``submit(payload)``, ``wait(handles)``, ``result(handle)`` and
-``close()``; a payload is a plain dict (``grid.Node.payload``) that ``execute`` runs in any process.
+failed run stop the others. A backend has ``submit(payload)``, ``wait(handles[, timeout])``,
+``result(handle)`` and ``close()``; a payload is a plain dict (``grid.Node.payload``) that ``execute`` runs
+in any process.
+
+Lost workers: a run whose process (or node) dies, as opposed to a run that raises, is run again from its
+last checkpoint up to ``retries`` times. Ray does this itself (``max_retries``; a Python exception is not
+retried); the local pool, which breaks as a whole when one worker dies, is rebuilt and every run that was
+in flight is submitted again. Progress: a worker writes ``progress.json`` (its env steps) into its run
+folder every few seconds and ``run_grid`` reads those while it waits, so the sweep's bar (and its ETA)
+moves during long runs, on every backend (Ray through the shared filesystem).
+
+``emit_commands`` writes the grid as ``python -m maniskill_dualher.train`` command lines instead (a SLURM
+job array, ``docs/cluster.md``).
 """
 from __future__ import annotations
 
+import inspect
+import json
 import os
+import shlex
+import socket
+import time
 from pathlib import Path
-from typing import Dict, List, Optional
+from typing import Callable, Dict, List, Optional
 
 from .. import rundir
 from ..config import RunConfig
+from ..fileio import atomic_write_text
 from . import protocol
 from .grid import Node
+
+PROGRESS = "progress.json"      # {"env_steps", "total_steps", "pid", "host", "time"}: a run in flight
+PROGRESS_EVERY_S = 2.0          # a worker writes it at most this often
+POLL_S = 1.0                    # run_grid reads the files of runs in flight this often
+DEFAULT_RETRIES = 2             # runs again a run whose worker or node died
+
+
+class WorkerLost(RuntimeError):
+    """The process or node running a run died (killed, out of memory, node lost): not an error of the run.
+
+    ``retryable``: whether ``run_grid`` may submit it again (False where the backend has already retried)."""
+
+    def __init__(self, msg: str, retryable: bool = True):
+        super().__init__(msg)
+        self.retryable = retryable
+
+
+# ----------------------------------------------------------------------------- in the worker
+class ProgressFile:
+    """``Trainer.progress_hook``: writes ``<run>/progress.json`` at most every ``every_s`` seconds (and at
+    the budget's end), atomically; ``listener()`` is called after each write (the inline backend's bar)."""
+
+    def __init__(self, every_s: float = PROGRESS_EVERY_S, listener: Optional[Callable[[], None]] = None):
+        self.every_s, self.listener, self.last = every_s, listener, None
+        self.who = {"pid": os.getpid(), "host": socket.gethostname()}
+
+    def __call__(self, out, env_steps: int, total_steps: int) -> None:
+        now = time.monotonic()
+        if self.last is not None and now - self.last < self.every_s and env_steps < total_steps:
+            return
+        self.last = now
+        try:
+            atomic_write_text(Path(out) / PROGRESS, json.dumps(
+                {"env_steps": int(env_steps), "total_steps": int(total_steps), **self.who,
+                 "time": round(time.time(), 3)}) + "\n")
+        except OSError:  # progress is a courtesy: it never stops a run
+            return
+        if self.listener is not None:
+            self.listener()
+
+
+def read_progress(run_dir) -> Optional[dict]:
+    """A run folder's ``progress.json``, or None (absent, or unreadable)."""
+    try:
+        d = json.loads((Path(run_dir) / PROGRESS).read_text())
+        return d if isinstance(d, dict) else None
+    except (OSError, ValueError):
+        return None
 
 
 def _worker_init(parent_pid: int) -> None:
@@ -30,43 +95,67 @@ def _worker_init(parent_pid: int) -> None:
     torch.set_num_threads(1)
 
 
-def execute(payload: dict) -> dict:
+def execute(payload: dict, listener: Optional[Callable[[], None]] = None) -> dict:
     """Run one grid node (in a worker) and return its final metrics row."""
     import torch
+    from ..train import Trainer
     torch.set_num_threads(1)
     cfg = RunConfig.from_dict(payload["cfg"])
-    if "stages" in payload:
-        stages = [RunConfig.from_dict(s) for s in payload["stages"]]
-        row = protocol.run_stage(stages, payload["stage"], payload["chain_dir"], payload["carry_replay"],
-                                 show_progress=False)
-    else:
-        from ..train import run_training
-        row = run_training(cfg, payload["out"], show_progress=False)
+    before = getattr(Trainer, "progress_hook", None)
+    Trainer.progress_hook = ProgressFile(listener=listener)
+    try:
+        if "stages" in payload:
+            stages = [RunConfig.from_dict(s) for s in payload["stages"]]
+            row = protocol.run_stage(stages, payload["stage"], payload["chain_dir"], payload["carry_replay"],
+                                     show_progress=False)
+        else:
+            from ..train import run_training
+            row = run_training(cfg, payload["out"], show_progress=False)
+    finally:
+        Trainer.progress_hook = before
     return {"rel": payload["rel"], "row": dict(row)}
 
 
+# ----------------------------------------------------------------------------- backends
 class LocalBackend:
-    """A spawn-context process pool (fork is unsafe beside torch/SAPIEN threads)."""
+    """A spawn-context process pool (fork is unsafe beside torch/SAPIEN threads).
+
+    When a worker dies the pool is broken for every run in flight (``BrokenProcessPool``): ``result``
+    says ``WorkerLost`` and the next ``submit`` builds a fresh pool."""
 
     def __init__(self, workers: int):
-        import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor
         os.environ.setdefault("OMP_NUM_THREADS", "1")
         os.environ.setdefault("MKL_NUM_THREADS", "1")
-        self.pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
-                                        initializer=_worker_init, initargs=(os.getpid(),))
         self.capacity = workers
+        self.pool = self._new_pool()
+
+    def _new_pool(self):
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+        return ProcessPoolExecutor(max_workers=self.capacity, mp_context=multiprocessing.get_context("spawn"),
+                                   initializer=_worker_init, initargs=(os.getpid(),))
 
     def submit(self, payload):
-        return self.pool.submit(execute, payload)
+        from concurrent.futures.process import BrokenProcessPool
+        try:
+            return self.pool.submit(execute, payload)
+        except BrokenProcessPool:  # a worker died: the old pool's workers are being ended; start over
+            self.pool.shutdown(wait=False, cancel_futures=True)
+            self.pool = self._new_pool()
+            return self.pool.submit(execute, payload)
 
-    def wait(self, handles):
+    def wait(self, handles, timeout: Optional[float] = None):
         from concurrent.futures import FIRST_COMPLETED, wait
-        return list(wait(handles, return_when=FIRST_COMPLETED).done)
+        return list(wait(handles, timeout=timeout, return_when=FIRST_COMPLETED).done)
 
     @staticmethod
     def result(h):
-        return h.result()
+        from concurrent.futures.process import BrokenProcessPool
+        try:
+            return h.result()
+        except BrokenProcessPool:
+            raise WorkerLost("a pool worker died (killed, or out of memory); the pool lost every run in "
+                             "flight") from None
 
     def close(self, cancel: bool = False):
         self.pool.shutdown(wait=not cancel, cancel_futures=cancel)
@@ -76,6 +165,7 @@ class InlineBackend:
     """Runs each submitted node at once in this process (no pool): for debugging and run-time plugins."""
 
     capacity = 1
+    listener: Optional[Callable[[], None]] = None  # run_grid's progress poll, called while a run trains
 
     class _Handle:  # hashable: run_grid keys its in-flight runs by handle
         def __init__(self, value=None, error=None):
@@ -83,11 +173,11 @@ class InlineBackend:
 
     def submit(self, payload):
         try:
-            return self._Handle(value=execute(payload))
+            return self._Handle(value=execute(payload, listener=self.listener))
         except Exception as e:  # reported by run_grid like a worker's failure
             return self._Handle(error=e)
 
-    def wait(self, handles):
+    def wait(self, handles, timeout: Optional[float] = None):
         return list(handles)[:1]
 
     @staticmethod
@@ -101,11 +191,15 @@ class InlineBackend:
 
 
 class RayBackend:
-    """Ray tasks (one CPU each); without an address a local instance is started and stopped."""
+    """Ray tasks (one CPU each); without an address a local instance is started and stopped.
 
-    def __init__(self, workers: Optional[int], address: Optional[str]):
+    A task whose worker or node dies is run again by Ray up to ``retries`` times (it resumes from its
+    run folder's checkpoint, so the cluster must share ``--out``); a Python exception is not retried."""
+
+    def __init__(self, workers: Optional[int], address: Optional[str], retries: int = DEFAULT_RETRIES):
         import ray
         self.ray = ray
+        self.retries = retries
         env = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
         repo = str(Path(__file__).resolve().parents[2])
         env["PYTHONPATH"] = os.pathsep.join(filter(None, [repo, os.environ.get("PYTHONPATH")]))
@@ -116,13 +210,13 @@ class RayBackend:
             # "local": always a fresh instance, never someone's `ray start` cluster on this machine
             ray.init(address="local", num_cpus=workers, include_dashboard=False, **kw)
         self.capacity = workers or max(1, int(ray.cluster_resources().get("CPU", 1)))
-        self.fn = ray.remote(num_cpus=1, max_retries=0)(execute)
+        self.fn = ray.remote(num_cpus=1, max_retries=retries, retry_exceptions=False)(execute)
 
     def submit(self, payload):
         return self.fn.remote(payload)
 
-    def wait(self, handles):
-        ready, _ = self.ray.wait(list(handles), num_returns=1)
+    def wait(self, handles, timeout: Optional[float] = None):
+        ready, _ = self.ray.wait(list(handles), num_returns=1, timeout=timeout)
         return ready
 
     def result(self, h):
@@ -130,11 +224,15 @@ class RayBackend:
             return self.ray.get(h)
         except self.ray.exceptions.RayTaskError as e:  # surface the run's own exception
             raise e.as_instanceof_cause() from None
+        except self.ray.exceptions.RayError as e:  # its worker or node died, and Ray's retries ran out
+            first = (str(e).strip().splitlines() or [""])[0][:200]
+            raise WorkerLost(f"{type(e).__name__} after {self.retries} retries: {first}", retryable=False) from None
 
     def close(self, cancel: bool = False):
         self.ray.shutdown()
 
 
+# ----------------------------------------------------------------------------- the scheduler
 def headline(row: dict) -> str:
     def num(k, fmt):
         try:
@@ -145,19 +243,88 @@ def headline(row: dict) -> str:
             f"successful training episodes {num('train_successes', '.0f')}")
 
 
-def run_grid(nodes: List[Node], out: Path, backend, progress: bool = True) -> List[str]:
-    """Run every unfinished node, parents before children, long chains first; return failures."""
+def traceback_hint(run_dir: Path) -> str:
+    """'; traceback: <run>/error.txt' where the run left one (train.py writes it on a failure)."""
+    p = Path(run_dir) / rundir.ERROR
+    return f"; traceback: {p}" if p.is_file() else ""
+
+
+class RunProgress:
+    """The sweep bar in env steps: a finished run counts whole, a run in flight by its ``progress.json``.
+
+    What a run has been credited never goes down (a retried run restarts from its checkpoint, a little
+    behind its last progress file), and a finished run brings it to the run's budget exactly. A run whose
+    progress file changes hands (another pid or host: Ray reran it after losing its worker or node, or it
+    resumes a run of an earlier sweep) is announced once per new process."""
+
+    def __init__(self, bar, out: Path):
+        self.bar, self.out = bar, Path(out)
+        self.running: Dict[str, Node] = {}
+        self.credited: Dict[str, int] = {}
+        self.where: Dict[str, tuple] = {}
+
+    def start(self, n: Node) -> None:
+        self.running[n.rel] = n
+        self.credited.setdefault(n.rel, 0)
+
+    def poll(self) -> None:
+        step = 0
+        for rel, n in self.running.items():
+            p = read_progress(self.out / rel)
+            try:
+                seen = min(int(p["env_steps"]), n.cfg.total_steps) if p else 0
+            except (KeyError, TypeError, ValueError):
+                continue
+            where = (p.get("host"), p.get("pid")) if p else None
+            if where and self.where.get(rel, where) != where:
+                self.bar.write(f"{n.label}: running again, now pid {where[1]} on {where[0]} "
+                               f"(resumed from its last checkpoint; at env step {seen})")
+            if where:
+                self.where[rel] = where
+            if seen > self.credited[rel]:
+                step += seen - self.credited[rel]
+                self.credited[rel] = seen
+        if step:
+            self.bar.update(step)
+
+    def finish(self, n: Node, ok: bool) -> None:
+        self.running.pop(n.rel, None)
+        self.where.pop(n.rel, None)
+        credited = self.credited.pop(n.rel, 0)
+        if ok:
+            self.bar.update(n.cfg.total_steps - credited)
+
+
+def _wait(backend, handles: list, timeout: float) -> list:
+    try:
+        takes_timeout = "timeout" in inspect.signature(backend.wait).parameters
+    except (TypeError, ValueError):
+        takes_timeout = False
+    return backend.wait(handles, timeout=timeout) if takes_timeout else backend.wait(handles)
+
+
+def run_grid(nodes: List[Node], out: Path, backend, progress: bool = True, retries: int = DEFAULT_RETRIES,
+             poll_s: float = POLL_S) -> List[str]:
+    """Run every unfinished node, parents before children, long chains first; return failures.
+
+    A run whose worker died (``WorkerLost``) is submitted again, from its checkpoint, up to ``retries``
+    times; a run that raised is a failure at once (its traceback: ``<run>/error.txt``)."""
     from tqdm import tqdm
 
+    out = Path(out)
     by_rel = {n.rel: n for n in nodes}
     done = {n.rel for n in nodes if rundir.is_done(out / n.rel)}
     todo = [n for n in nodes if n.rel not in done]
     failed: List[str] = []
     in_flight: Dict[object, Node] = {}
+    lost: Dict[str, int] = {}
     total = sum(n.cfg.total_steps for n in nodes)
     # progress in env steps (finished runs count whole), so the ETA is one of work, not of run count
     bar = tqdm(total=total, initial=sum(by_rel[r].cfg.total_steps for r in done), desc="sweep", unit="step",
                unit_scale=True, disable=not progress, dynamic_ncols=True, smoothing=0.05)
+    tracker = RunProgress(bar, out)
+    if hasattr(backend, "listener"):
+        backend.listener = tracker.poll
     if done:
         bar.write(f"{len(done)} of {len(nodes)} runs already finished: skipped")
     try:
@@ -165,21 +332,37 @@ def run_grid(nodes: List[Node], out: Path, backend, progress: bool = True) -> Li
             ready = [n for n in todo if n.parent is None or n.parent in done]
             ready.sort(key=lambda n: -n.descendants)  # stable: grid order among equals
             for n in ready[: max(0, backend.capacity - len(in_flight))]:
+                tracker.start(n)
                 in_flight[backend.submit(n.payload(out))] = n
                 todo.remove(n)
             if not in_flight:
                 break  # the rest waits on failed runs
-            for h in backend.wait(list(in_flight)):
+            finished = _wait(backend, list(in_flight), poll_s)
+            tracker.poll()
+            for h in finished:
                 n = in_flight.pop(h)
                 try:
                     res = backend.result(h)
+                except WorkerLost as e:
+                    lost[n.rel] = lost.get(n.rel, 0) + 1
+                    if e.retryable and lost[n.rel] <= retries:
+                        bar.write(f"LOST {n.label} ({n.rel}): {e}; retry {lost[n.rel]}/{retries} from its "
+                                  f"last checkpoint{traceback_hint(out / n.rel)}")
+                        in_flight[backend.submit(n.payload(out))] = n
+                        continue
+                    tracker.finish(n, ok=False)
+                    failed.append(n.rel)
+                    tries = f" ({lost[n.rel]} times)" if e.retryable else ""
+                    bar.write(f"FAILED {n.label} ({n.rel}): worker lost{tries}: {e}{traceback_hint(out / n.rel)}")
+                    continue
                 except Exception as e:  # one failed run must not stop the others
+                    tracker.finish(n, ok=False)
                     failed.append(n.rel)
                     msg = str(e).strip().splitlines()[-1] if str(e).strip() else type(e).__name__
-                    bar.write(f"FAILED {n.label} ({n.rel}): {type(e).__name__}: {msg}")
+                    bar.write(f"FAILED {n.label} ({n.rel}): {type(e).__name__}: {msg}{traceback_hint(out / n.rel)}")
                     continue
                 done.add(n.rel)
-                bar.update(n.cfg.total_steps)
+                tracker.finish(n, ok=True)
                 bar.set_postfix(runs=f"{len(done)}/{len(nodes)}")
                 bar.write(f"done {n.label}: {headline(res['row'])}")
         blocked = [n.rel for n in todo]
@@ -190,3 +373,56 @@ def run_grid(nodes: List[Node], out: Path, backend, progress: bool = True) -> Li
     return failed + blocked
 
 
+# ----------------------------------------------------------------------------- command lines (SLURM)
+def _levels(nodes: List[Node], out: Path) -> Dict[str, int]:
+    """Each unfinished run's level: 0 if it can start now, else its parent's level + 1."""
+    by_rel = {n.rel: n for n in nodes}
+    level: Dict[str, int] = {}
+
+    def get(n: Node) -> int:
+        if n.rel not in level:
+            p = by_rel.get(n.parent) if n.parent else None
+            level[n.rel] = 0 if p is None or rundir.is_done(out / p.rel) else get(p) + 1
+        return level[n.rel]
+
+    return {n.rel: get(n) for n in nodes if not rundir.is_done(out / n.rel)}
+
+
+def train_command(n: Node, out: Path, config_file: Path) -> str:
+    """The ``python -m maniskill_dualher.train`` line that does what ``execute`` does for this node."""
+    args = ["python", "-m", "maniskill_dualher.train", "--config", str(config_file), "--out", str(out / n.rel),
+            "--no-progress"]
+    if n.stages is not None:
+        last = len(n.stages) - 1
+        if n.stage > 0:
+            args += ["--init-from", str(out / n.parent)]
+            if n.carry_replay:
+                args.append("--carry-replay")
+        if n.carry_replay and n.stage < last:
+            args.append("--keep-replay")
+    return " ".join(shlex.quote(a) for a in args)
+
+
+def emit_commands(nodes: List[Node], out: Path, path: Path) -> List[List[int]]:
+    """Write one train command per unfinished run into ``path``, level by level (a run after its parent),
+    each run's config as ``<path stem>-configs/<run>.json``, and each stage's ``stage.json`` (what
+    ``protocol.run_stage`` would write). Returns the 1-based line numbers of each level."""
+    out, path = Path(out).resolve(), Path(path).resolve()
+    levels = _levels(nodes, out)
+    # level by level; within one, long chains first (as run_grid starts them), then grid order
+    order = sorted((n for n in nodes if n.rel in levels), key=lambda n: (levels[n.rel], -n.descendants))
+    cfg_dir = path.parent / f"{path.stem}-configs"
+    lines = []
+    for n in order:
+        cfg_file = cfg_dir / (n.rel.replace("/", "__") + ".json")
+        atomic_write_text(cfg_file, n.cfg.to_json() + "\n")
+        if n.stages is not None and rundir.read_stage(out / n.rel) is None:
+            rundir.write_stage(out / n.rel, protocol.stage_lineage(n.stages, n.stage, n.carry_replay))
+        lines.append(train_command(n, out, cfg_file))
+    atomic_write_text(path, "".join(line + "\n" for line in lines))
+    by_level: List[List[int]] = []
+    for i, n in enumerate(order, 1):
+        while len(by_level) <= levels[n.rel]:
+            by_level.append([])
+        by_level[levels[n.rel]].append(i)
+    return by_level

@@ -87,10 +87,13 @@ def build_grid(d: dict) -> List[Node]:
         node = nodes.setdefault(n.rel, n)
         node.cells.append(cell)
 
-    for exp_name in d["experiments"]:
+    for item in d["experiments"]:
+        exp_name, _, only = item.partition(":")   # "e_share:paper+e_off": some of its arms
         exp = experiment(exp_name)
         methods = [m for m in exp.method_names() if m in d["methods"]]
         for arm in exp.arms:
+            if only and arm.name not in only.split("+"):
+                continue
             settings = overrides.parse_all(arm.settings)
             for method in methods:
                 if arm.methods is not None and method not in arm.methods:

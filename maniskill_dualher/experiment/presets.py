@@ -43,6 +43,12 @@ class Preset:
         cfg.replay.her_k = HER_K_SINGLE
         return overrides.apply(cfg, overrides.parse_all(self.settings) + tuple(extra))
 
+    def single_config(self, method: str, seed: int, task: str) -> RunConfig:
+        """A single-task run of this preset, as the sweep builds it (train --preset, benches, learning tests)."""
+        cfg = self.base_config(method, seed)
+        cfg.env_id, cfg.total_steps = task, self.steps("single", task)
+        return cfg.validate()
+
 
 def _every_task(n: int, **per_task: int) -> Dict[str, int]:
     out = {t: n for t in TASKS}

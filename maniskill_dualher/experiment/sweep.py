@@ -64,13 +64,19 @@ def _pick(text: str, allowed: Sequence[str], what: str) -> List[str]:
 
 
 def _experiments(text: Optional[str]) -> List[str]:
+    """Experiment names, groups (default, ablations, all), or NAME:ARM+ARM for some of an experiment's arms."""
     if not text or text == "default":
         return list(default_experiments())
     names: List[str] = []
     for x in _split(text):
+        name, _, arms = x.partition(":")
         group = {"all": list(EXPERIMENTS), "ablations": list(ablation_experiments()),
-                 "default": list(default_experiments())}.get(x)
-        for n in group or _pick(x, list(EXPERIMENTS), "experiment"):
+                 "default": list(default_experiments())}.get(name)
+        if arms:
+            exp = EXPERIMENTS[_pick(name, list(EXPERIMENTS), "experiment")[0]]
+            _pick(arms.replace("+", ","), [a.name for a in exp.arms], f"arm of {name}")
+            group = [x]
+        for n in group or _pick(name, list(EXPERIMENTS), "experiment"):
             if n not in names:
                 names.append(n)
     return names
@@ -112,7 +118,7 @@ def definition_from_args(a: argparse.Namespace) -> dict:
         "preset_settings": list(p.settings),
         "settings": settings,
     }
-    for name in d["experiments"]:
+    for name in (x.split(":")[0] for x in d["experiments"]):
         e = EXPERIMENTS[name]
         if not set(e.method_names()) & set(d["methods"]):
             raise ConfigError(f"experiment {name!r} needs method {' or '.join(e.method_names())}")
@@ -172,11 +178,12 @@ def make_parser() -> argparse.ArgumentParser:
                 "  python -m maniskill_dualher.sweep --experiments e_share,warm_start --dry-run\n"
                 "  python -m maniskill_dualher.sweep --set adapt.sac.random_steps=0 --set sac.lr=3e-4 --dry-run\n"
                 "  python -m maniskill_dualher.sweep --preset paper --backend ray --ray-address auto --workers 64\n"
+                "  python -m maniskill_dualher.sweep --preset paper --emit-commands jobs.txt   # SLURM: docs/cluster.md\n"
                 "  python -m maniskill_dualher.report runs/quick        # rebuild tables/plots from a sweep folder"),
     )
     p.add_argument("--preset", choices=sorted(PRESETS), default="quick", help="budget preset (default: quick)")
     p.add_argument("--experiments", help="comma list of experiment names, or default (the paper's four), "
-                                         "ablations, all (default: default)")
+                                         "ablations, all; NAME:ARM+ARM runs some of its arms (default: default)")
     p.add_argument("--tasks", help=f"tasks of single-task experiments (default: all: {','.join(TASKS)})")
     p.add_argument("--methods", help=f"comma list of {', '.join(METHOD_SPECS)} (default: all; each experiment "
                                      "uses those of them it is defined for)")
@@ -205,6 +212,14 @@ def make_parser() -> argparse.ArgumentParser:
                                          "without it --backend ray starts a local Ray instance. "
                                          "The cluster must see --out on a shared filesystem")
     p.add_argument("--force", action="store_true", help="use an --out that holds a different sweep")
+    p.add_argument("--retries", type=int, default=2,
+                   help="run again, from its last checkpoint, a run whose worker or node died (killed, out of "
+                        "memory, node lost), up to this many times; a run that raises is not retried "
+                        "(default: %(default)s)")
+    p.add_argument("--emit-commands", metavar="FILE",
+                   help="run nothing: write one `python -m maniskill_dualher.train` command per unfinished run "
+                        "into FILE, parents before children (configs in FILE's folder), for a SLURM job array "
+                        "or any scheduler (docs/cluster.md)")
     p.add_argument("--dry-run", action="store_true", help="print the runs and their cost, write nothing")
     p.add_argument("--no-report", action="store_true", help="skip building the report at the end")
     return p
@@ -220,7 +235,14 @@ def write_cells(nodes: List[Node], out: Path) -> None:
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
-    from .backends import InlineBackend, LocalBackend, RayBackend, run_grid
+    import contextlib
+    with contextlib.ExitStack() as held:  # the out folder's lock (lock.py), released however the sweep ends
+        return _main(argv, held)
+
+
+def _main(argv: Optional[Sequence[str]], held) -> int:
+    from .backends import InlineBackend, LocalBackend, RayBackend, emit_commands, run_grid
+    from .lock import FolderLock
 
     parser = make_parser()
     a = parser.parse_args(argv)
@@ -238,7 +260,14 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                 import ray  # noqa: F401
             except ImportError:
                 raise ConfigError("--backend ray needs Ray: pip install 'ray[default]'") from None
+        if a.retries < 0:
+            raise ConfigError(f"--retries must be >= 0, got {a.retries}")
+        if a.emit_commands and a.dry_run:
+            raise ConfigError("--emit-commands and --dry-run: choose one")
         check_out_folder(out, d, a.force)
+        if not a.dry_run:  # one sweep per folder; then look again, now that no other sweep can write it
+            held.enter_context(FolderLock(out))
+            check_out_folder(out, d, a.force)
     except ConfigError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
@@ -259,16 +288,24 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
 
     rundir.write_json(out / SWEEP, d)
     write_cells(nodes, out)
+    if a.emit_commands:
+        levels = emit_commands(nodes, out, Path(a.emit_commands))
+        n_cmd = sum(len(lv) for lv in levels)
+        print(f"{n_cmd} commands in {a.emit_commands} ({len(nodes) - n_cmd} runs already finished); run them "
+              f"level by level (a level's runs in any order, in parallel), then: python -m maniskill_dualher.report {out}")
+        for i, lv in enumerate(levels):
+            print(f"  level {i}: lines {lv[0]}-{lv[-1]} ({len(lv)} runs)")
+        return 0
     print(f"sweep {a.preset}: {len(nodes)} runs in {out} on {a.backend} backend", flush=True)
     if todo_cfgs:
         from .cost import describe, grid_cost
         for line in describe(grid_cost(todo_cfgs), workers or 1):
             print(line, flush=True)
     backend = {"local": lambda: LocalBackend(workers), "inline": InlineBackend,
-               "ray": lambda: RayBackend(workers, a.ray_address)}[a.backend]()
+               "ray": lambda: RayBackend(workers, a.ray_address, retries=a.retries)}[a.backend]()
     cancel = True
     try:
-        failed = run_grid(nodes, out, backend)
+        failed = run_grid(nodes, out, backend, retries=a.retries)
         cancel = False
     except KeyboardInterrupt:
         print("interrupted: rerun the same command to resume", file=sys.stderr)
