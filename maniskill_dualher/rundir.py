@@ -1,6 +1,6 @@
 """The run-folder and sweep-folder contract: file names and the helpers that read and write them.
 
-A run folder (written by ``train.py``; a transfer stage also by ``protocol.py``)::
+A run folder (written by ``train.py``; a transfer stage also by ``experiment/protocol.py``)::
 
     config.json     the RunConfig (a different config in the same folder is refused)
     metrics.csv     one row per evaluation (METRIC_COLUMNS first)
@@ -14,10 +14,12 @@ A run folder (written by ``train.py``; a transfer stage also by ``protocol.py``)
     policy_best.pt  the actor at the best evaluation success so far (a tie keeps the earlier)
     provenance.json where and with what code it ran: {"starts": [one provenance() per process start]}
     error.txt       the traceback of the last failed attempt (a later resume may still finish it)
+    progress.json   env steps done, written by a sweep's worker every few seconds (the sweep's bar reads it)
     events.out.*    TensorBoard
 
-A sweep folder holds ``sweep.json`` (the definition: which runs exist) and ``runs/...``; the report
-writes its tables, plots and summary.md beside them. Every write is atomic (``fileio``).
+A sweep folder holds ``sweep.json`` (the definition: which runs exist), ``.sweep.lock`` (one sweep at a
+time; the OS drops it with the process) and ``runs/...``; the report writes ``scores.csv``, ``curves.csv``,
+its tables, plots and summary.md beside them. Every write is atomic (``fileio``).
 """
 from __future__ import annotations
 

@@ -528,28 +528,10 @@ def _field_flags(parser: argparse.ArgumentParser) -> None:
                 g.add_argument(f"--{name}", dest=dest, default=None, metavar=f.name.upper(), help=help_)
 
 
-def _coerce(name: str, raw: str, default):
-    try:
-        if name == "ratio":
-            return parse_ratio(raw)
-        if isinstance(default, tuple):
-            return tuple(int(x) for x in raw.replace("x", ",").split(",") if x)
-        if isinstance(default, int) and not isinstance(default, bool):
-            return int(float(raw)) if float(raw).is_integer() else int(raw)
-        if isinstance(default, float):
-            return float(raw)
-        if default is None and name in ("max_episode_steps",):
-            return int(raw)
-        if default is None and name in ("target_entropy",):
-            return float(raw)
-        return raw
-    except ConfigError:
-        raise
-    except ValueError:
-        raise ConfigError(f"--{name.replace('_', '-')}: bad value {raw!r}") from None
-
-
 def config_from_args(args: argparse.Namespace) -> RunConfig:
+    """--config file, then --preset (its settings and this task's single-task budget), then the flags given,
+    then --set KEY=VALUE: every value typed by one parser (experiment/overrides.py)."""
+    from .experiment import overrides
     base = RunConfig()
     if args.config:
         p = Path(args.config)
@@ -561,15 +543,28 @@ def config_from_args(args: argparse.Namespace) -> RunConfig:
             raise ConfigError(f"config file {p} is not valid JSON (line {e.lineno})") from None
         except TypeError as e:
             raise ConfigError(f"config file {p}: {e}") from None
-    d = base.to_dict()
+    items = []
     for key, raw in vars(args).items():
         if "." not in key or raw is None:
             continue
         section, name = key.split(".", 1)
-        target = d if section == "run" else d[section]
-        default = getattr(RunConfig() if section == "run" else _SECTIONS[section](), name)
-        target[name] = raw if isinstance(raw, bool) else _coerce(name, raw, default)
-    return RunConfig.from_dict(d).validate()
+        path = name if section == "run" else f"{section}.{name}"
+        try:
+            value = raw if isinstance(raw, bool) else overrides.coerce(path, raw)
+        except ConfigError as e:
+            if "summing to 1" in str(e) or "ratio must" in str(e):
+                raise
+            raise ConfigError(f"--{_ALIASES.get(name, name).replace('_', '-')}: bad value {raw!r}") from None
+        items.append(overrides.Override(path, value))
+    if args.preset:
+        from .experiment.presets import preset
+        given = {o.path: o.value for o in items}
+        base = preset(args.preset).single_config(given.get("method", base.method), given.get("seed", base.seed),
+                                                 given.get("env_id", base.env_id))
+    items += [overrides.parse(i) for i in (args.set or [])]
+    if any(o.stage for o in items):
+        raise ConfigError("train runs one stage: --set takes KEY=VALUE without a stage prefix (adapt., source.)")
+    return overrides.apply(base, items).validate()
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -579,6 +574,11 @@ def build_parser() -> argparse.ArgumentParser:
                     "env with a Box action space. Running again on the same --out resumes.")
     p.add_argument("--out", required=True, help="run folder (created; resumed if it holds a checkpoint)")
     p.add_argument("--config", help="JSON file with a RunConfig (flags override it)")
+    p.add_argument("--preset", help="start from a sweep preset's settings and this task's single-task budget "
+                                    "(quick: settings that learn in minutes; without it the defaults are the "
+                                    "paper's Table 3, which learned nothing in 20k env steps on ReachTarget)")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE",
+                   help="any RunConfig setting, dotted (sac.lr=3e-4, replay.ratio=1/0); repeatable")
     p.add_argument("--init-from", help="a finished run folder whose networks start this run (transfer)")
     p.add_argument("--carry-replay", action="store_true", help="with --init-from: also carry its replay buffers")
     p.add_argument("--keep-replay", action="store_true",
