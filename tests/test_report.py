@@ -241,7 +241,7 @@ def test_hyperparameters_put_ours_beside_table3_per_stage(folder):
 
 def test_plots_are_written(folder):
     written = report.build_report(folder)
-    for name in ("fig4_single_task.png", "fig5_multitask.png"):
+    for name in ("fig4_single_task.png", "fig5_multitask.png", "fig7_aggregate.png"):
         assert folder / name in written
         assert (folder / name).read_bytes()[:4] == b"\x89PNG"
 

@@ -157,3 +157,20 @@ def test_multiplicity_note_and_bonferroni():
     assert stats.bonferroni_level(10) == pytest.approx(0.995)
     assert stats.bonferroni_level(1) == pytest.approx(0.95)
     assert stats.multiplicity_note(1).startswith("1 claim was tested")
+
+
+def test_aggregates_across_tasks_rliable_style():
+    """IQM (trimmed mean of the middle half), stratified bootstrap CI over seeds within tasks, run profile."""
+    import numpy as np
+    from maniskill_dualher.analysis import stats as st
+    x = np.array([0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 100.0])
+    assert st.iqm(x) == pytest.approx(np.mean([2.0, 3.0, 4.0, 5.0]))
+    m = np.array([[0.1, 0.5], [0.2, 0.7], [0.3, 0.9], [0.4, 0.6]])   # 4 seeds x 2 tasks
+    pt, lo, hi = st.aggregate_ci(m, lambda b: b.mean(axis=1))
+    assert pt == pytest.approx(m.mean()) and lo < pt < hi
+    assert st.aggregate_ci(m, lambda b: b.mean(axis=1)) == (pt, lo, hi)          # seeded
+    # stratified: a resample never mixes tasks, so a constant task keeps its value in every resample
+    flat = np.array([[0.5, 1.0], [0.5, 2.0], [0.5, 3.0]])
+    _, lo2, hi2 = st.aggregate_ci(flat, lambda b: b.reshape(len(b), -1, 2)[:, :, 0].mean(axis=1))
+    assert lo2 == hi2 == 0.5
+    assert list(st.performance_profile(m, np.array([0.0, 0.45, 0.95]))) == [1.0, 0.5, 0.0]

@@ -153,3 +153,58 @@ def plot_ablations(curves, path: Path, experiments: Sequence[str]) -> bool:
     save_figure(fig, path)
     plt.close(fig)
     return True
+
+
+def plot_aggregate(scores_rows, path: Path, metric: str = "mean_eval_success_rate") -> bool:
+    """Across tasks, rliable style, from single-task scores: IQM and mean with stratified-bootstrap 95% CIs,
+    the run-score performance profile, and the probability of improvement of each pair of methods."""
+    from . import stats
+    rows = [r for r in scores_rows if r["role"] == "single" and r["experiment"] == "single" and r["metric"] == metric]
+    tasks = sorted({r["task"] for r in rows}, key=lambda t: TASKS.index(t) if t in TASKS else 99)
+    methods = [m for m in METHOD_SPECS if any(r["method"] == m for r in rows)]
+    vals: Dict[str, Dict[str, Dict[int, float]]] = defaultdict(lambda: defaultdict(dict))
+    for r in rows:
+        vals[r["method"]][r["task"]][int(r["seed"])] = float(r["value"])
+    mats = {}
+    for m in methods:
+        seeds = sorted(set.intersection(*[set(vals[m][t]) for t in tasks])) if all(vals[m][t] for t in tasks) else []
+        if len(seeds) >= 2:
+            mats[m] = np.array([[vals[m][t][s] for t in tasks] for s in seeds])
+    if len(mats) < 2:
+        return False
+    plt = _plt()
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
+    names = list(mats)
+    for k, (label, fn) in enumerate((("IQM", lambda x: stats.iqm(x, axis=1)), ("mean", lambda x: x.mean(axis=1)))):
+        for j, m in enumerate(names):
+            pt, lo, hi = stats.aggregate_ci(mats[m], fn)
+            y = j + 0.18 * (1 - 2 * k)
+            axes[0].errorbar(pt, y, xerr=[[pt - lo], [hi - pt]], fmt="o" if k == 0 else "s", color=color_of(m),
+                             capsize=3, label=label if j == 0 else None, alpha=1.0 if k == 0 else 0.5)
+    axes[0].set_yticks(range(len(names)), [METHOD_SPECS[m].display for m in names])
+    axes[0].set_xlim(-0.02, 1.02) if metric.endswith("rate") else None
+    axes[0].set_xlabel(f"{metric} (o IQM, s mean; 95% stratified bootstrap CI)")
+    axes[0].set_title(f"Aggregate over {len(tasks)} tasks", fontsize=10)
+    taus = np.linspace(0, 1, 41)
+    for m in names:
+        axes[1].plot(taus, stats.performance_profile(mats[m], taus), color=color_of(m), label=METHOD_SPECS[m].display)
+    axes[1].set_xlabel(f"threshold tau on {metric}")
+    axes[1].set_ylabel("fraction of runs with score > tau")
+    axes[1].set_title("Performance profile (all tasks and seeds)", fontsize=10)
+    axes[1].legend(fontsize=7)
+    pairs = [(a, b) for i, a in enumerate(names) for b in names[i + 1:]]
+    for j, (a, b) in enumerate(pairs):
+        p = np.mean([stats.prob_improvement(mats[a][:, t], mats[b][:, t]) for t in range(len(tasks))])
+        axes[2].barh(j, p, color=color_of(a))
+    axes[2].axvline(0.5, color="black", linestyle=":")
+    axes[2].set_yticks(range(len(pairs)), [f"P({a} > {b})" for a, b in pairs], fontsize=8)
+    axes[2].set_xlim(0, 1)
+    axes[2].set_title("Probability of improvement (mean over tasks)", fontsize=10)
+    for ax in axes:
+        ax.grid(alpha=0.3)
+    fig.suptitle(f"Single-task learning across tasks, in rliable's style (n = {min(len(v) for v in mats.values())} "
+                 "seeds per task)")
+    fig.tight_layout()
+    save_figure(fig, path)
+    plt.close(fig)
+    return True

@@ -191,7 +191,8 @@ def build_report(folder, resamples: int = 10_000, reference: Optional[Path] = No
     ablations = [e for e in dict.fromkeys(r["experiment"] for r in scores) if e not in _default_experiments()]
     for name, fn in (("fig4_single_task.png", lambda p: plots.plot_fig4(curves, p, ref_curves)),
                      ("fig5_multitask.png", lambda p: plots.plot_fig5(curves, p, ref_curves)),
-                     ("fig6_ablations.png", lambda p: plots.plot_ablations(curves, p, ablations))):
+                     ("fig6_ablations.png", lambda p: plots.plot_ablations(curves, p, ablations)),
+                     ("fig7_aggregate.png", lambda p: plots.plot_aggregate(scores, p))):
         if fn(folder / name):
             figures.append(name)
             written.append(folder / name)

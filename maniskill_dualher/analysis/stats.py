@@ -345,6 +345,30 @@ SKEWED: Dict[str, Tuple[Callable, float, Callable, float]] = {
 }
 
 
+# --------------------------------------------------------------------------- aggregates across tasks (rliable's)
+def iqm(x: np.ndarray, axis=None) -> np.ndarray:
+    """Interquartile mean: the mean of the middle 50% (rliable's robust aggregate; scipy's trim_mean)."""
+    from scipy.stats import trim_mean
+    return trim_mean(x, 0.25, axis=axis)
+
+
+def aggregate_ci(scores: np.ndarray, fn, resamples: int = 2_000, seed: int = 0, level: float = 0.95):
+    """(point, low, high) of ``fn`` over a (seeds, tasks) score matrix, with rliable's stratified bootstrap:
+    seeds are resampled within each task. ``fn`` maps (resamples, seeds*tasks) to (resamples,)."""
+    rng = np.random.default_rng(seed)
+    n, t = scores.shape
+    idx = rng.integers(0, n, size=(resamples, n, t))
+    boot = np.take_along_axis(scores[None].repeat(resamples, 0), idx, axis=1).reshape(resamples, -1)
+    vals = fn(boot)
+    lo, hi = np.percentile(vals, [50 * (1 - level), 100 - 50 * (1 - level)])
+    return float(fn(scores.reshape(1, -1))[0]), float(lo), float(hi)
+
+
+def performance_profile(scores: np.ndarray, taus: np.ndarray) -> np.ndarray:
+    """Fraction of runs (all tasks and seeds) scoring above each threshold tau (rliable's run-score profile)."""
+    return (scores.reshape(-1)[None, :] > taus[:, None]).mean(axis=1)
+
+
 def coverage(dist: str, n: int, methods: Sequence[str], reps: int, resamples: int, shift: bool = False,
              seed: int = 0) -> Dict[str, Tuple[float, float]]:
     """{method: (coverage of the true mean difference, median width)} over ``reps`` simulated pairs."""
