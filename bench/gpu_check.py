@@ -613,13 +613,9 @@ class SplitTimer:
 
 
 def _quick_config(method: str, seed: int):
-    """The 'quick' preset's RunConfig (presets live in experiment/presets.py; sweep.py before that)."""
-    try:
-        from maniskill_dualher.experiment.presets import PRESETS
-        return PRESETS["quick"].base_config(method, seed)
-    except ImportError:
-        from maniskill_dualher.sweep import PRESETS, base_config
-        return base_config(PRESETS["quick"], method, seed)
+    """The 'quick' preset's RunConfig."""
+    from maniskill_dualher.experiment.presets import PRESETS
+    return PRESETS["quick"].base_config(method, seed)
 
 
 def measure_train_split(sim: Sim, task: str, num_envs: int, total_steps: int, out_dir: str, log=print) -> dict:

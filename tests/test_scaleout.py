@@ -143,7 +143,6 @@ def test_lost_worker_bound_and_failure_points_to_traceback(tmp_path, capsys):
     assert f"ValueError: bad; traceback: {tmp_path / 'runs/single/b/error.txt'}" in out
 
 
-@pytest.mark.slow
 def test_ray_cluster_node_removed_midrun_sweep_finishes_same_tables(reference, tmp_path):
     """Two Ray nodes on this machine (the head schedules nothing); the node running stage >= 1 is removed
     mid-run and a fresh one joins: Ray reruns the task, which resumes from the checkpoint."""

@@ -215,3 +215,23 @@ def test_help_explains_every_flag():
     epilog = sweep.make_parser().epilog
     assert all(f"  {k}" in epilog for k in overrides.keys())   # every --set key is listed with its doc
     assert all(overrides.keys().values())
+
+
+def test_train_preset_and_set_use_the_one_parser():
+    """`train --preset quick` starts from the preset's settings and this task's single-task budget; flags and
+    `--set` override it; the plain defaults stay the paper's Table 3."""
+    from maniskill_dualher.experiment.presets import PRESETS
+    from maniskill_dualher.train import build_parser, config_from_args
+    parse = lambda *a: config_from_args(build_parser().parse_args(["--out", "x", *a]))  # noqa: E731
+    cfg = parse("--preset", "quick", "--env", "CloseMicrowave-v1", "--seed", "3", "--set", "sac.lr=3e-4")
+    want = PRESETS["quick"].single_config("dual_buffer", 3, "CloseMicrowave-v1")
+    want.sac.lr = 3e-4
+    assert cfg == want and cfg.total_steps == 16_000 and cfg.sac.hidden == (64, 64)
+    assert parse("--preset", "quick", "--steps", "500").total_steps == 500
+    paper = parse()
+    assert (paper.sac.lr, paper.sac.gamma, paper.sac.variant) == (1e-4, 0.99, "paper")
+    assert parse("--set", "replay.ratio=1/0", "--set", "eval_at_start=true").replay.ratio == (1.0, 0.0)
+    for bad, needle in ((["--set", "adapt.sac.lr=1"], "one stage"), (["--set", "sac.nope=1"], "sac.nope"),
+                        (["--preset", "nope"], "nope")):
+        with pytest.raises(ConfigError, match=needle):
+            parse(*bad)

@@ -56,7 +56,7 @@ def _every_task(n: int, **per_task: int) -> Dict[str, int]:
     return out
 
 
-# The quick preset's settings: rl-baselines3-zoo goal-task values (modern SAC with learned alpha, 64x64,
+# The quick preset's settings: close to rl-baselines3-zoo's goal-task values (modern SAC with learned alpha, 64x64,
 # lr 1e-3, tau 0.05, gamma 0.95, batch 256) where the paper's (V network, fixed alpha 0.005, lr 1e-4,
 # gamma 0.99) had 0/10 eval successes on ReachTarget at 20k env steps; 100-step episodes ending on success.
 QUICK_SETTINGS = (
@@ -75,7 +75,7 @@ PRESETS: Dict[str, Preset] = {
                   "sac.hidden=32,32", "sac.batch_size=32", "sac.random_steps=100", "sac.learning_starts=100",
                   "replay.capacity=10000")),
     "quick": Preset(
-        "the paper's experiments at CPU budgets (rl-zoo goal-task settings): 4 single-task seeds, 6 chain seeds",
+        "the paper's experiments at CPU budgets (rl-zoo-like goal-task settings): 4 single-task seeds, 6 chain seeds",
         single_steps=dict(QUICK_SINGLE), stage_steps=_every_task(6_000), adaptation_steps=_every_task(12_000),
         seeds=(0, 1, 2, 3), chain_seeds=tuple(range(6)), default_steps=10_000, settings=QUICK_SETTINGS),
     # The reference (results/reference): quick's budgets and settings, an evaluation at env step 0 of every
