@@ -43,6 +43,7 @@ class Claim:
     b: Side
     relative_margin: bool = False  # margin = 10% of the larger mean (counts) instead of an absolute 0.1
     group: str = "paper"           # "paper" or "ablation"
+    explains: str = ""             # ablations: what this claim tells about the dual buffer's gap (summary.md)
 
 
 def _t(method: str, arm: str = "paper", experiment: str = "transfer") -> Side:
@@ -74,16 +75,20 @@ CLAIMS: List[Claim] = [
                 "budget", "not in the paper", N, _t(HER), Side("scratch", "paper", HER), relative_margin=True),
     # ------------------------------------------------------------------ why the dual buffer loses (ablations)
     Claim("prior", "the priors differ: sac_her_per's prior > dual_buffer's, evaluated on the target before "
-                   "adaptation (zero-shot)", "", "step0_eval_success_rate", _t(HER), _t(DUAL), group="ablation"),
+                   "adaptation (zero-shot)", "", "step0_eval_success_rate", _t(HER), _t(DUAL), group="ablation",
+          explains="the priors: SAC+HER+PER's prior minus the dual buffer's, zero-shot success on the target, is"),
     Claim("e_off", "same prior, E off in adaptation (ratio 1/0) > the paper's dual buffer (0.6/0.4): successful "
                    "episodes", "", N, Side("e_share", "e_off", DUAL), _t(DUAL), relative_margin=True,
-          group="ablation"),
+          group="ablation", explains="E's share of the updates, same prior: switching E off in adaptation changes "
+                                     "the dual buffer's count by"),
     Claim("e_off_vs_her", "the dual buffer's prior with E off > sac_her_per: successful episodes (what is left "
                           "of the gap without E)", "", N, Side("e_share", "e_off", DUAL), _t(HER),
-          relative_margin=True, group="ablation"),
+          relative_margin=True, group="ablation", explains="what is left without E (the dual buffer's prior and "
+                                                            "source-stage training): E off minus SAC+HER+PER is"),
     Claim("split", "E's share inside every batch (split) > whole batches from E (choose, Alg. 1): successful "
                    "episodes", "", N, Side("e_share", "split", DUAL), _t(DUAL), relative_margin=True,
-          group="ablation"),
+          group="ablation", explains="how E is mixed in: E's 40% inside every batch instead of whole batches "
+                                     "changes the count by"),
     Claim("r_matched", "as many R updates as sac_her_per (1/0.6 updates per step) > the paper's dual buffer: "
                        "successful episodes", "", N, Side("e_share", "r_matched", DUAL), _t(DUAL),
           relative_margin=True, group="ablation"),
@@ -94,12 +99,15 @@ CLAIMS: List[Claim] = [
                         "successful episodes", "", N, Side("e_content", "e_episodes", DUAL), _t(DUAL),
           relative_margin=True, group="ablation"),
     Claim("warm_dual", "warm start (no random steps) > the paper's adaptation, dual_buffer: mean evaluation "
-                       "success", "", S, Side("warm_start", "warm", DUAL), _t(DUAL), group="ablation"),
+                       "success", "", S, Side("warm_start", "warm", DUAL), _t(DUAL), group="ablation",
+          explains="fine-tuning collapse, dual buffer: a warm start changes mean evaluation success by"),
     Claim("warm_her", "warm start > the paper's adaptation, sac_her_per: mean evaluation success", "", S,
-          Side("warm_start", "warm", HER), _t(HER), group="ablation"),
+          Side("warm_start", "warm", HER), _t(HER), group="ablation",
+          explains="fine-tuning collapse, SAC+HER+PER: a warm start changes mean evaluation success by"),
     Claim("warm_a", "with a warm start, dual_buffer > sac_her_per: successful episodes (claim a without the "
                     "collapse)", "", N, Side("warm_start", "warm", DUAL), Side("warm_start", "warm", HER),
-          relative_margin=True, group="ablation"),
+          relative_margin=True, group="ablation", explains="claim (a) without the collapse (both warm): dual "
+                                                            "buffer minus SAC+HER+PER is"),
     Claim("warm_h", "with a warm start, transfer > from scratch, dual_buffer: successful episodes (claim h "
                     "without the collapse)", "", N, Side("warm_start", "warm", DUAL), Side("scratch", "paper", DUAL),
           relative_margin=True, group="ablation"),
@@ -146,3 +154,7 @@ def claim_rows(scores: Sequence[Dict[str, str]], resamples: int = 10_000,
                      "prob_improvement": cmp.prob_improvement, "margin": margin, "verdict": cmp.verdict_text(),
                      "seeds_to_decide": cmp.seeds_to_decide})
     return rows
+
+
+def explains(key: str) -> str:
+    return next((c.explains for c in CLAIMS if c.key == key), "")

@@ -136,6 +136,12 @@ def summary_md(folder: Path, scores, tables, claims, figures: List[str], n_runs:
         rows = [r for r in claims if r["group"] == group]
         if rows:
             s += [f"### {title}", ""] + claims_md(rows) + [""]
+    why = [r for r in claims if r["group"] == "ablation" and "diff" in r and claims_mod.explains(r["claim"])]
+    if why:
+        s += ["### Why the dual buffer's count differs: one sentence per ablation claim", ""]
+        s += [f"- {claims_mod.explains(r['claim'])} {_g(r['diff'])} [{_g(r['diff_ci95_low'])}, "
+              f"{_g(r['diff_ci95_high'])}] (`{r['metric']}`, n = {r['n_a']}, {r['n_b']}): **{r['verdict']}** "
+              f"(claim {r['claim']})." for r in why] + [""]
     cols = ["experiment", "arm", "task", "method", "variant", "metric", "n_seeds", "mean", "std", "ci95_low",
             "ci95_high", "paper"]
     for name, title in (("table5_multitask.csv", "Table 5: transfer and scratch, adaptation stage"),
