@@ -151,7 +151,10 @@ def claim_rows(scores: Sequence[Dict[str, str]], resamples: int = 10_000,
                      "diff": cmp.diff, "diff_ci95_low": cmp.ci_low, "diff_ci95_high": cmp.ci_high,
                      "welch_ci95_low": getattr(cmp, "welch_low", math.nan),
                      "welch_ci95_high": getattr(cmp, "welch_high", math.nan),
-                     "prob_improvement": cmp.prob_improvement, "margin": margin, "verdict": cmp.verdict_text(),
+                     "prob_improvement": cmp.prob_improvement, "margin": margin,
+                     # our own questions are not reproductions: their "A > B" is "supported"
+                     "verdict": cmp.verdict_text().replace(stats.REPRODUCED, "supported")
+                     if c.group != "paper" else cmp.verdict_text(),
                      "seeds_to_decide": cmp.seeds_to_decide})
     return rows
 

@@ -163,6 +163,7 @@ def build_report(folder, resamples: int = 10_000, reference: Optional[Path] = No
     if not folder.is_dir():
         raise ConfigError(f"no such folder: {folder}")
     runs, unfinished = load_runs(folder)
+    unfinished = [u for u in unfinished if (folder / u).is_dir()]  # a folder shipped without its runs has none
     written: List[Path] = []
     old_scores = read_rows(folder / SCORES) if (folder / SCORES).is_file() else None
     if runs:
