@@ -98,8 +98,8 @@ class SACConfig:
     is_weights_critic_only: bool = False
     actor_uniform_batch: bool = False     # train the actor on its own uniform batch (LAP/PAL-style option)
     # matmul precision of updates and acting: "highest" = strict fp32 (on CPUs also the fastest fp32 choice for
-    # the fused update); "high"/"medium" = torch's setting (oneDNN/cuBLAS may use TF32/bf16 kernels, fp32-level
-    # results, tests/test_sac.py); "bf16" = the fused update's hidden-to-hidden products take bfloat16 inputs
+    # the fused update); "high"/"medium" = torch's setting (oneDNN/cuBLAS may use TF32/bf16 kernels: fp32-level
+    # results on AVX512-BF16 CPUs, tests/test_sac.py, but within ~0.5% only on CPUs with AMX); "bf16" = the fused update's hidden-to-hidden products take bfloat16 inputs
     # (rounds beyond fp32, its own learning check; ~2x their fp32 rate on CPUs with AVX512-BF16 or AMX)
     matmul_precision: str = "highest"
     # how the update gets its gradients: "fused" = written out by hand (sac_fused.py; autograd's values to

@@ -155,7 +155,9 @@ def test_no_import_circles_among_core_modules():
 
     for m in graph:
         visit(m, [])
-    assert not any(m.startswith("maniskill_dualher.experiment") or m == "maniskill_dualher.train"
+    # the analysis reads the experiment registry (plain data) but never the runner side
+    assert not any((m.startswith("maniskill_dualher.experiment") and m != "maniskill_dualher.experiment.registry")
+                   or m == "maniskill_dualher.train"
                    for a in graph if a.startswith("maniskill_dualher.analysis") for m in graph[a])
 
 

@@ -169,7 +169,8 @@ def build_report(folder, resamples: int = 10_000, reference: Optional[Path] = No
     if runs:
         new_scores = score_rows(runs)
         if old_scores is not None:
-            missing = sorted({r["run"] for r in old_scores} - {r["run"] for r in new_scores})
+            missing = sorted(r for r in {r["run"] for r in old_scores} - {r["run"] for r in new_scores}
+                             if not (folder / r).is_dir())  # runs whose folders are gone (a shipped folder)
             if missing:
                 raise ConfigError(f"{folder / SCORES} holds {len(missing)} runs this folder no longer has "
                                   f"(e.g. {missing[0]}); refusing to replace it with less")
