@@ -552,7 +552,7 @@ def config_from_args(args: argparse.Namespace) -> RunConfig:
         try:
             value = raw if isinstance(raw, bool) else overrides.coerce(path, raw)
         except ConfigError as e:
-            if "summing to 1" in str(e) or "ratio must" in str(e):
+            if not str(e).startswith("bad value for"):  # a message that already names the value (ratios)
                 raise
             raise ConfigError(f"--{_ALIASES.get(name, name).replace('_', '-')}: bad value {raw!r}") from None
         items.append(overrides.Override(path, value))

@@ -182,7 +182,8 @@ def plot_aggregate(scores_rows, path: Path, metric: str = "mean_eval_success_rat
             axes[0].errorbar(pt, y, xerr=[[pt - lo], [hi - pt]], fmt="o" if k == 0 else "s", color=color_of(m),
                              capsize=3, label=label if j == 0 else None, alpha=1.0 if k == 0 else 0.5)
     axes[0].set_yticks(range(len(names)), [METHOD_SPECS[m].display for m in names])
-    axes[0].set_xlim(-0.02, 1.02) if metric.endswith("rate") else None
+    if metric.endswith("rate"):
+        axes[0].set_xlim(-0.02, 1.02)
     axes[0].set_xlabel(f"{metric} (o IQM, s mean; 95% stratified bootstrap CI)")
     axes[0].set_title(f"Aggregate over {len(tasks)} tasks", fontsize=10)
     taus = np.linspace(0, 1, 41)

@@ -19,24 +19,16 @@ from typing import Dict, List, Optional, Sequence
 from .. import rundir
 from ..cli import OneLineParser
 from ..config import ConfigError
+from ..experiment.registry import default_experiments  # plain data: no torch, no simulator
 from ..fileio import atomic_write_text, csv_text, fmt
 from . import claims as claims_mod
 from . import plots, stats
 from .paper import PAPER_ADAPT_BUDGET, PAPER_ADAPT_STEPS, PAPER_TABLE3
-from .runs import (CURVE_COLUMNS, METRICS, SCORE_COLUMNS, Run, curve_rows, load_runs, read_rows, rows_text,
+from .runs import (CURVE_COLUMNS, METRICS, SCORE_COLUMNS, Run, curve_rows, load_runs, read_rows,
                    score_rows)
 from .tables import TABLE_COLUMNS, build_tables
 
 SCORES, CURVES = "scores.csv", "curves.csv"
-DEFAULT_EXPERIMENTS = ("single", "transfer", "ratios", "scratch")
-
-
-def _default_experiments() -> Sequence[str]:
-    try:  # the registry is plain data (no torch); fall back to the paper's four if it is not importable
-        from ..experiment.registry import default_experiments
-        return default_experiments()
-    except ImportError:
-        return DEFAULT_EXPERIMENTS
 
 
 def hyperparameter_rows(runs: List[Run]) -> List[dict]:
@@ -101,7 +93,7 @@ def md_table(rows: List[dict], columns: List[str]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def summary_md(folder: Path, scores, tables, claims, figures: List[str], n_runs: int, unfinished: List[str]) -> str:
+def summary_md(folder: Path, scores, tables, claims, figures: List[str], unfinished: List[str]) -> str:
     sweep = rundir.read_sweep(folder) or {}
     runs = sorted({r["run"] for r in scores})
     s = [f"# Results: {folder.name}" + (f" (preset {sweep['preset']})" if sweep.get("preset") else ""), ""]
@@ -174,8 +166,8 @@ def build_report(folder, resamples: int = 10_000, reference: Optional[Path] = No
             if missing:
                 raise ConfigError(f"{folder / SCORES} holds {len(missing)} runs this folder no longer has "
                                   f"(e.g. {missing[0]}); refusing to replace it with less")
-        atomic_write_text(folder / SCORES, rows_text(new_scores, SCORE_COLUMNS))
-        atomic_write_text(folder / CURVES, rows_text(curve_rows(runs), CURVE_COLUMNS))
+        atomic_write_text(folder / SCORES, csv_text(new_scores, SCORE_COLUMNS))
+        atomic_write_text(folder / CURVES, csv_text(curve_rows(runs), CURVE_COLUMNS))
         atomic_write_text(folder / "hyperparameters.csv", csv_text(hyperparameter_rows(runs)))
         written += [folder / SCORES, folder / CURVES, folder / "hyperparameters.csv"]
     elif old_scores is None or not (folder / CURVES).is_file():
@@ -188,7 +180,7 @@ def build_report(folder, resamples: int = 10_000, reference: Optional[Path] = No
         if not (Path(reference) / CURVES).is_file():
             raise ConfigError(f"--reference {reference} holds no {CURVES}")
         ref_curves = read_rows(Path(reference) / CURVES)
-    tables = build_tables(scores, _default_experiments())
+    tables = build_tables(scores, default_experiments())
     for name, rows in tables.items():
         atomic_write_text(folder / name, csv_text(rows, TABLE_COLUMNS))
         written.append(folder / name)
@@ -196,7 +188,7 @@ def build_report(folder, resamples: int = 10_000, reference: Optional[Path] = No
     atomic_write_text(folder / "claims.csv", csv_text(claims, claims_mod.CLAIM_COLUMNS))
     written.append(folder / "claims.csv")
     figures = []
-    ablations = [e for e in dict.fromkeys(r["experiment"] for r in scores) if e not in _default_experiments()]
+    ablations = [e for e in dict.fromkeys(r["experiment"] for r in scores) if e not in default_experiments()]
     for name, fn in (("fig4_single_task.png", lambda p: plots.plot_fig4(curves, p, ref_curves)),
                      ("fig5_multitask.png", lambda p: plots.plot_fig5(curves, p, ref_curves)),
                      ("fig6_ablations.png", lambda p: plots.plot_ablations(curves, p, ablations)),
@@ -204,8 +196,7 @@ def build_report(folder, resamples: int = 10_000, reference: Optional[Path] = No
         if fn(folder / name):
             figures.append(name)
             written.append(folder / name)
-    atomic_write_text(folder / "summary.md", summary_md(folder, scores, tables, claims, figures, len(runs),
-                                                        unfinished))
+    atomic_write_text(folder / "summary.md", summary_md(folder, scores, tables, claims, figures, unfinished))
     written.append(folder / "summary.md")
     return written
 

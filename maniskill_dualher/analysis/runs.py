@@ -8,7 +8,6 @@ metric (``METRICS``); a curve point is one evaluation of a run, placed at its no
 from __future__ import annotations
 
 import csv
-import io
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -142,15 +141,6 @@ def curve_rows(runs: List[Run]) -> List[Dict[str, str]]:
                 out.append({**_cell_values(c), "env_steps": str(nominal_step(r.cfg, row["env_steps"])),
                             **{k: _num(row.get(k, math.nan)) for k in CURVE_KEYS}, "run": r.rel})
     return out
-
-
-def rows_text(rows: List[Dict[str, str]], columns: List[str]) -> str:
-    buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=columns, lineterminator="\n")
-    w.writeheader()
-    for r in rows:
-        w.writerow({k: r.get(k, "") for k in columns})
-    return buf.getvalue()
 
 
 def read_rows(path: Path) -> List[Dict[str, str]]:
