@@ -23,6 +23,7 @@ from typing import Dict, Optional
 
 import numpy as np
 
+from .config import ConfigError
 from .replay.base import Batch, Episode
 from .replay.buffer import Handle, to_batch
 from .replay.her import concat_rows, real_transitions, relabel
@@ -70,6 +71,25 @@ class DualBufferReplay(BufferMethod):
             ok = np.isclose(real["reward"], 1.0)
         if ok.any():
             self.E.add(_select(real, ok))
+
+    def load_transfer_state(self, state: dict) -> None:
+        """Adopt a prior's replay: the dual buffer's own, or SAC+HER+PER's single R (the shared-prior ablation:
+        R as it is, priorities included, and E started from R's real reward-1 rows, as Algorithm 1 would
+        have stored them)."""
+        if state.get("method") != "SACHerPerReplay":
+            return self.load_state_dict(state)
+        if self.rcfg.success_buffer == "episodes":
+            raise ConfigError("success_buffer=episodes cannot be rebuilt from a SAC+HER+PER prior "
+                              "(its R does not keep episode boundaries); use success_buffer=transitions")
+        if "real_success_rows" not in state.get("extra", {}):
+            raise ConfigError("the SAC+HER+PER prior's checkpoint does not mark its real successes "
+                              "(written by an older version); rerun its stages")
+        self.rng.bit_generator.state = state["rng"]
+        self.main.load_state_dict(state["buffers"]["R"])
+        self._buffer("E", prioritized=False)
+        rows = np.asarray(state["extra"]["real_success_rows"], np.int64)
+        if len(rows):
+            self.E.add(self.main.storage.get(rows))
 
     def on_transfer(self) -> None:
         if not self.rcfg.carry_success_buffer:  # E holds only the target task's own successes

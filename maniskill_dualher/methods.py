@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import importlib
 from dataclasses import dataclass
-from typing import Dict, List
+from typing import Dict, List, Tuple
 
 import numpy as np
 
@@ -25,6 +25,7 @@ class MethodSpec:
     color: str                # matplotlib colour, the same in every figure
     transfer: bool = True     # runs the transfer chain (paper Fig. 5 / Table 5) and the scratch control
     sampling_ratio: bool = False  # replay.ratio matters: the ratio study varies it; it tags folders and rows
+    adopts: Tuple[str, ...] = ()  # other methods whose prior (networks and replay) it can adapt from
 
     def tag(self, cfg: RunConfig) -> str:
         """The settings that tell this method's runs apart in folder names and table rows ('' if none)."""
@@ -39,7 +40,7 @@ METHOD_SPECS: Dict[str, MethodSpec] = {s.name: s for s in (
     MethodSpec("sac", "maniskill_dualher.baselines.sac:SACReplay", "SAC (uniform replay)", "tab:gray", transfer=False),
     MethodSpec("sac_her_per", "maniskill_dualher.baselines.sac_her_per:SACHerPerReplay", "SAC+HER+PER", "tab:blue"),
     MethodSpec("dual_buffer", "maniskill_dualher.dual_buffer:DualBufferReplay", "dual buffer", "tab:orange",
-               sampling_ratio=True),
+               sampling_ratio=True, adopts=("sac_her_per",)),
 )}
 
 

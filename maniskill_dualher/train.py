@@ -139,7 +139,7 @@ class Trainer:
             if state.get("method") is None:
                 raise ConfigError("init_from checkpoint holds no replay buffers (its run did not keep them); "
                                   "rerun it, or transfer without carrying replay")
-            self.method.load_state_dict(state["method"])
+            self.method.load_transfer_state(state["method"])
             self.method.on_transfer()
             self.method.reseed(np.random.default_rng([self.cfg.seed, 1]))  # keep this run's own sampling stream
 

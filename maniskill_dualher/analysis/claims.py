@@ -85,6 +85,16 @@ CLAIMS: List[Claim] = [
                           "of the gap without E)", "", N, Side("e_share", "e_off", DUAL), _t(HER),
           relative_margin=True, group="ablation", explains="what is left without E (the dual buffer's prior and "
                                                             "source-stage training): E off minus SAC+HER+PER is"),
+    Claim("shared_a", "with one shared prior (SAC+HER+PER's networks and R), dual_buffer > sac_her_per: "
+                      "successful episodes (claim a with the prior held fixed)", "", N,
+          Side("shared_prior", "shared", DUAL), Side("shared_prior", "shared", HER), relative_margin=True,
+          group="ablation", explains="claim (a) with the prior held fixed (both adapt from SAC+HER+PER's prior): "
+                                     "dual buffer minus SAC+HER+PER is"),
+    Claim("shared_prior", "SAC+HER+PER's prior > the dual buffer's own, for the dual buffer's adaptation: "
+                          "successful episodes", "", N, Side("shared_prior", "shared", DUAL), _t(DUAL),
+          relative_margin=True, group="ablation",
+          explains="the prior's share of the gap: the dual buffer adapting from SAC+HER+PER's prior instead of its "
+                   "own changes its count by"),
     Claim("split", "E's share inside every batch (split) > whole batches from E (choose, Alg. 1): successful "
                    "episodes", "", N, Side("e_share", "split", DUAL), _t(DUAL), relative_margin=True,
           group="ablation", explains="how E is mixed in: E's 40% inside every batch instead of whole batches "

@@ -62,13 +62,15 @@ def _seeds(exp: Experiment, d: dict) -> List[int]:
 
 
 def chain_configs(p: Preset, exp: Experiment, arm_settings, user, method: str, seed: int,
-                  order: Sequence[str], adapt_factor: float = 1.0) -> List[RunConfig]:
-    """The stage configs of one chain (scratch: a one-stage chain on the last task)."""
+                  order: Sequence[str], adapt_factor: float = 1.0,
+                  prior_method: Optional[str] = None) -> List[RunConfig]:
+    """The stage configs of one chain (scratch: a one-stage chain on the last task); with ``prior_method``
+    the source stages are that method's (a prior shared by every method that adapts from it)."""
     tasks = list(order) if exp.kind == "chain" else list(order[-1:])
     n = len(tasks)
     stages = []
     for i, task in enumerate(tasks):
-        cfg = p.base_config(method, seed)
+        cfg = p.base_config(prior_method if prior_method and i < n - 1 else method, seed)
         cfg.env_id = task
         cfg.replay.her_k = HER_K_MULTITASK
         cfg.total_steps = p.steps("source", task) if i < n - 1 else max(1, round(p.steps("adapt", task) * adapt_factor))
@@ -112,18 +114,21 @@ def build_grid(d: dict) -> List[Node]:
                                  "stage": 0, "n_stages": 1, "role": "single", "parent": None})
                         continue
                     stages = chain_configs(p, exp, settings, user, method, seed, d["task_order"],
-                                           arm.adapt_steps_factor)
+                                           arm.adapt_steps_factor, arm.prior_method)
                     protocol.validate_chain(stages)
                     chain = " > ".join(s.env_id for s in stages)
                     parent = None
                     for i, cfg in enumerate(stages):
-                        rel = f"{RUNS_DIR}/chain/{method}-s{seed}/{protocol.stage_dirname(stages, i, d['carry_replay'])}"
-                        variant = method_spec(method).tag(cfg)
+                        # a chain lives under its prior's method: a shared prior's stages are that method's runs
+                        rel = (f"{RUNS_DIR}/chain/{stages[0].method}-s{seed}/"
+                               f"{protocol.stage_dirname(stages, i, d['carry_replay'])}")
+                        variant = method_spec(cfg.method).tag(cfg)
                         role = "adapt" if i == len(stages) - 1 else "source"
-                        add(Node(rel, cfg, f"{method}{' ' + variant if variant else ''} seed {seed} stage {i} "
+                        add(Node(rel, cfg, f"{cfg.method}{' ' + variant if variant else ''} seed {seed} stage {i} "
                                            f"{cfg.env_id}", parent=parent, stages=stages, stage=i,
                                  carry_replay=d["carry_replay"]),
-                            {**base, "task": cfg.env_id, "chain": chain, "variant": variant, "stage": i,
+                            {**base, "method": cfg.method, "task": cfg.env_id, "chain": chain, "variant": variant,
+                             "stage": i,
                              "n_stages": len(stages), "role": role, "parent": parent})
                         parent = rel
     for n in nodes.values():  # priority = how many runs wait on this one

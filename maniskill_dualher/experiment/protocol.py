@@ -63,9 +63,13 @@ def make_stages(base: RunConfig, order: Sequence[str], steps: Sequence[int],
 def validate_chain(stages: Sequence[RunConfig]) -> None:
     if not stages:
         raise ConfigError("a transfer chain needs at least one stage")
-    methods = {s.method for s in stages}
-    if len(methods) != 1:
-        raise ConfigError(f"all stages of a chain must use one method, got {sorted(methods)}")
+    methods = {s.method for s in stages[:-1]}
+    if len(methods) > 1:
+        raise ConfigError(f"all source stages of a chain must use one method, got {sorted(methods)}")
+    prior, last = stages[0].method, stages[-1].method
+    if last != prior and prior not in method_spec(last).adopts:
+        raise ConfigError(f"method {last!r} cannot adapt from a {prior!r} prior "
+                          f"(it adopts: {', '.join(method_spec(last).adopts) or 'only its own'})")
     for s in stages:
         s.validate()
 

@@ -31,6 +31,7 @@ class Arm:
     doc: str = ""
     max_seeds: Optional[int] = None            # only the first n of the experiment's seeds (second-tier arms)
     adapt_steps_factor: float = 1.0            # the adaptation stage's budget times this (a longer regime)
+    prior_method: Optional[str] = None         # source stages trained by this method (one prior for all)
 
 
 @dataclass(frozen=True)
@@ -83,6 +84,12 @@ EXPERIMENTS: Dict[str, Experiment] = {e.name: e for e in (
         Arm("split", ("adapt.replay.dual_mode=split",), doc="E's 40% inside every batch", max_seeds=8),
         Arm("r_matched", ("adapt.sac.updates_per_step=1/0.6",),
             doc="1/0.6 updates per env step: as many updates from R as SAC+HER+PER", max_seeds=8),
+    )),
+    Experiment("shared_prior", "One prior for both methods: SAC+HER+PER's source stages", "chain",
+               methods="transfer", arms=(
+        Arm("shared", prior_method="sac_her_per",
+            doc="both adapt from SAC+HER+PER's prior (networks and R); the dual buffer's E starts from R's real "
+                "reward-1 rows"),
     )),
     Experiment("e_content", "What the dual buffer's E holds in adaptation", "chain", methods=("dual_buffer",), arms=(
         Arm("e_target_only", ("adapt.replay.carry_success_buffer=false",),

@@ -92,6 +92,11 @@ class BufferMethod:
                 out["max_priority" if k == "R" else f"{k}_max_priority"] = float(b.sampler.max_priority)
         return out
 
+    def load_transfer_state(self, state: dict) -> None:
+        """Start from a prior run's replay (transfer). Default: the same method's buffers, as saved; a method
+        that can adopt another method's replay (the shared-prior ablation) overrides this."""
+        self.load_state_dict(state)
+
     def on_transfer(self) -> None:
         """Called once after another run's replay was loaded into this one (transfer); default: keep it all."""
 

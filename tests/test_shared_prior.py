@@ -1,0 +1,124 @@
+"""The shared-prior ablation: both methods adapt from SAC+HER+PER's prior; the dual buffer's E starts from
+that R's real reward-1 rows (never from its hindsight copies)."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from maniskill_dualher.baselines.sac_her_per import SACHerPerReplay
+from maniskill_dualher.config import ConfigError, RunConfig
+from maniskill_dualher.dual_buffer import DualBufferReplay
+from maniskill_dualher.experiment import grid, protocol, sweep
+
+from fakes import point_episode, spec
+
+
+def _cfg(method, capacity=10_000, k=2):
+    cfg = RunConfig(method=method)
+    cfg.replay.capacity, cfg.replay.her_k, cfg.replay.her_strategy = capacity, k, "future"
+    return cfg
+
+
+def _real_success_rows(m: SACHerPerReplay) -> set:
+    return {tuple(np.round(m.main.storage.get(np.array([i]))["obs"][0], 6)) for i in m.real_success_rows()}
+
+
+def test_sac_her_per_marks_exactly_its_real_reward_1_rows():
+    m = SACHerPerReplay(_cfg("sac_her_per"), spec(), np.random.default_rng(0))
+    ep = point_episode(success_at=[(2, 0), (4, 1)])
+    m.add_episode(ep)
+    rows = m.main.storage.get(np.arange(len(m.main)))
+    n_real = ep.reward.size
+    assert rows["reward"][n_real:].sum() > 0  # hindsight copies with reward 1 exist, and are not marked
+    assert list(m.real_success_rows()) == list(np.flatnonzero(rows["reward"][:n_real] == 1.0))
+    assert len(m.real_success_rows()) == 2
+
+
+def test_marks_follow_the_ring_when_rows_are_overwritten():
+    m = SACHerPerReplay(_cfg("sac_her_per", capacity=40, k=2), spec(), np.random.default_rng(0))
+    m.add_episode(point_episode(seed=0, success_at=[(1, 0)]))   # 18 real + 36 hindsight rows > 40: wraps
+    m.add_episode(point_episode(seed=1))                        # no real success: overwrites older marks
+    rows = m.main.storage.get(np.arange(len(m.main)))
+    marked = m.real_success_rows()
+    assert all(rows["reward"][i] == 1.0 for i in marked)
+    assert len(marked) == 0  # the only real success row was overwritten by the second episode
+
+
+def test_dual_buffer_adopts_the_prior_R_and_starts_E_from_its_real_successes():
+    prior = SACHerPerReplay(_cfg("sac_her_per"), spec(), np.random.default_rng(0))
+    for s in range(3):
+        prior.add_episode(point_episode(seed=s, success_at=[(s, s % 3)]))
+    state = prior.state_dict()
+    d = DualBufferReplay(_cfg("dual_buffer"), spec(), np.random.default_rng(1))
+    d.load_transfer_state(state)
+    assert len(d.main) == len(prior.main)
+    np.testing.assert_array_equal(d.main.storage.get(np.arange(len(d.main)))["obs"],
+                                  prior.main.storage.get(np.arange(len(prior.main)))["obs"])
+    assert len(d.E) == 3 == len(prior.real_success_rows())
+    np.testing.assert_array_equal(d.E.storage.get(np.arange(3))["obs"],
+                                  prior.main.storage.get(prior.real_success_rows())["obs"])
+    # a resumed prior keeps its marks (they are part of its checkpoint)
+    again = SACHerPerReplay(_cfg("sac_her_per"), spec(), np.random.default_rng(5))
+    again.load_state_dict(state)
+    assert list(again.real_success_rows()) == list(prior.real_success_rows())
+
+
+def test_dual_buffer_refuses_a_prior_it_cannot_rebuild_E_from():
+    prior = SACHerPerReplay(_cfg("sac_her_per"), spec(), np.random.default_rng(0))
+    prior.add_episode(point_episode(success_at=[(2, 0)]))
+    old = prior.state_dict()
+    old["extra"] = {}
+    d = DualBufferReplay(_cfg("dual_buffer"), spec(), np.random.default_rng(1))
+    with pytest.raises(ConfigError, match="does not mark"):
+        d.load_transfer_state(old)
+    cfg = _cfg("dual_buffer")
+    cfg.replay.success_buffer = "episodes"
+    with pytest.raises(ConfigError, match="success_buffer=episodes"):
+        DualBufferReplay(cfg, spec(), np.random.default_rng(1)).load_transfer_state(prior.state_dict())
+
+
+def test_a_chain_may_adapt_only_from_a_prior_its_method_adopts():
+    her, dual = RunConfig(method="sac_her_per"), RunConfig(method="dual_buffer")
+    protocol.validate_chain([her, her, dual])  # the dual buffer adopts SAC+HER+PER's prior
+    with pytest.raises(ConfigError, match="cannot adapt from a 'dual_buffer' prior"):
+        protocol.validate_chain([dual, dual, her])
+    with pytest.raises(ConfigError, match="source stages"):
+        protocol.validate_chain([her, dual, dual])
+
+
+def _definition(tmp_path, experiments):
+    return sweep.definition_from_args(sweep.make_parser().parse_args(
+        ["--preset", "smoke", "--experiments", experiments, "--seeds", "1", "--out", str(tmp_path / "s")]))
+
+
+def test_grid_shares_the_prior_stages_with_sac_her_per_transfer(tmp_path):
+    d = _definition(tmp_path, "transfer,shared_prior")
+    nodes = {n.rel: n for n in grid.build_grid(d)}
+    adapt = {(c["experiment"], c["method"]): n for n in nodes.values() for c in n.cells if c["role"] == "adapt"}
+    dual_shared, her_shared = adapt["shared_prior", "dual_buffer"], adapt["shared_prior", "sac_her_per"]
+    assert her_shared is adapt["transfer", "sac_her_per"]           # the same run serves both experiments
+    assert dual_shared.parent == her_shared.parent                  # one prior: SAC+HER+PER's stage 1
+    assert dual_shared.parent != adapt["transfer", "dual_buffer"].parent
+    assert dual_shared.cfg.method == "dual_buffer" and nodes[dual_shared.parent].cfg.method == "sac_her_per"
+    # a source stage's cells name the method that trains it
+    assert all(c["method"] == "sac_her_per" for c in nodes[dual_shared.parent].cells)
+    assert len(nodes) == 2 * 3 + 1  # two chains of three, plus the dual buffer's shared-prior adaptation
+
+
+def test_shared_prior_sweep_end_to_end(tmp_path):
+    """Smoke budgets: SAC+HER+PER's two source stages, then both adaptations from them; the claims see both."""
+    import csv
+    out = tmp_path / "sweep"
+    assert sweep.main(["--preset", "smoke", "--out", str(out), "--backend", "inline", "--seeds", "1",
+                       "--experiments", "shared_prior"]) == 0
+    done = sorted(str(p.parent.relative_to(out)) for p in out.rglob("done.json"))
+    assert len(done) == 4 and all(r.startswith("runs/chain/sac_her_per-s0/") for r in done)
+    lineage = [json.loads((p.parent / "lineage.json").read_text()) for p in out.rglob("done.json")
+               if json.loads((p.parent / "config.json").read_text())["method"] == "dual_buffer"]
+    assert len(lineage) == 1 and lineage[0]["carry_replay"] and "stage1-CloseBox" in lineage[0]["init_from"]
+    with open(out / "claims.csv", newline="") as f:
+        rows = {r["claim"]: r for r in csv.DictReader(f)}
+    assert rows["shared_a"]["n_a"] == "1" and rows["shared_a"]["n_b"] == "1"
+    assert rows["shared_prior"]["verdict"] == "not measured (runs missing)"  # no transfer/paper dual buffer here
