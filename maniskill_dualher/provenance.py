@@ -79,6 +79,15 @@ def cpu_info() -> dict:
             "avx2": ("avx2" in flags) if flags else None}
 
 
+def machine_label(cpu: Optional[dict]) -> str:
+    """A CPU in a few words, for tables: its model line and the instruction sets that change speed and
+    rounding (AVX-512 BF16, AMX, AVX2); "" when unknown."""
+    if not cpu or not cpu.get("model"):
+        return ""
+    isa = "+".join(k for k in ("avx512_bf16", "amx_bf16") if cpu.get(k)) or ("avx2" if cpu.get("avx2") else "")
+    return f"{cpu['model']} ({isa})" if isa else str(cpu["model"])
+
+
 def _torch_info() -> dict:
     try:
         import torch

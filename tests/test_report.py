@@ -263,3 +263,67 @@ def test_every_claim_names_a_metric_and_cells_that_exist():
         for side in (c.a, c.b):
             assert side.experiment in EXPERIMENTS, (c.key, side)
             assert side.arm in {a.name for a in EXPERIMENTS[side.experiment].arms}, (c.key, side)
+
+
+def _shipped(src: Path, dst: Path, sweep: dict) -> Path:
+    """A results folder as committed: the report's files without run folders, and a sweep.json."""
+    report.build_report(src)
+    dst.mkdir()
+    for f in src.iterdir():
+        if f.is_file():
+            shutil.copy2(f, dst / f.name)
+    (dst / "sweep.json").write_text(json.dumps(sweep))
+    return dst
+
+
+SWEEP = {"preset": "reference", "budgets": {"single": {"CloseBox-v1": 200}, "source": {"CloseBox-v1": 300},
+                                            "adapt": {"CloseMicrowave-v1": 300}}, "preset_settings": [], "settings": [],
+         "task_order": list(TASKS), "carry_replay": True}
+
+
+def _provenance(folder: Path, model: str, bf16: bool) -> None:
+    for cfg in folder.rglob("config.json"):
+        (cfg.parent / "provenance.json").write_text(json.dumps(
+            {"starts": [{"cpu": {"model": model, "avx512_bf16": bf16, "amx_bf16": False, "avx2": True}}]}))
+
+
+def test_merge_adds_another_sweeps_cells_with_their_machine(folder, tmp_path, capsys):
+    """A reference made on one CPU gets the cells of a later sweep made on another: the claims see both
+    sides, each row says its machine, run names say their sweep; overlapping cells or other budgets refuse."""
+    _provenance(folder, "CPU A", True)
+    other = tmp_path / "more"
+    for seed, v in enumerate([1.0, 2.0, 3.0]):
+        _write_run(other / f"runs/single/ReachTarget-v1-sac-s{seed}", _cfg("ReachTarget-v1", "sac", seed), [1, 2],
+                   [0.0, v], [_cell("single", "paper", "ReachTarget-v1", "sac", seed, role="single", chain="",
+                                    stage=0)])
+        _write_run(other / f"runs/single/ReachTarget-v1-dual_buffer-s{seed}",
+                   _cfg("ReachTarget-v1", "dual_buffer", seed), [1, 2], [0.0, v + 5],
+                   [_cell("single", "paper", "ReachTarget-v1", "dual_buffer", seed, role="single", chain="",
+                          stage=0, variant="0.6/0.4")])
+    _provenance(other, "CPU B", False)
+    ref = _shipped(folder, tmp_path / "reference", SWEEP)
+    report.build_report(other)
+    (other / "sweep.json").write_text(json.dumps({**SWEEP, "experiments": ["single"]}))
+    n_before = len(_table(ref / "scores.csv"))
+    assert report.main([str(ref), "--merge", str(other)]) == 0
+    scores = _table(ref / "scores.csv")
+    assert len(scores) > n_before and {r["machine"] for r in scores} == {"CPU A (avx512_bf16)", "CPU B (avx2)"}
+    assert all(r["run"].startswith("more/") for r in scores if r["machine"] == "CPU B (avx2)")
+    claims = {r["claim"]: r for r in _table(ref / "claims.csv")}
+    assert claims["e"]["n_a"] == "3" and claims["e"]["machines"] == "CPU B (avx2)"
+    assert claims["a"]["machines"] == "CPU A (avx512_bf16)"
+    assert json.loads((ref / "sweep.json").read_text())["merged"][0]["folder"] == "more"
+    assert "CPU B (avx2): single" in (ref / "summary.md").read_text()
+    # again: the same cells are there now -> refused, nothing written
+    before = {p: p.read_bytes() for p in ref.rglob("*") if p.is_file()}
+    capsys.readouterr()
+    assert report.main([str(ref), "--merge", str(other)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "already has cell single/paper/" in err[0]
+    # a sweep with other budgets -> refused
+    (other / "sweep.json").write_text(json.dumps({**SWEEP, "budgets": {**SWEEP["budgets"], "adapt": {"CloseMicrowave-v1": 600}}}))
+    assert report.main([str(ref), "--merge", str(other)]) == 2
+    assert "other budgets" in capsys.readouterr().err
+    # into a folder with run folders -> refused
+    assert report.main([str(folder), "--merge", str(other)]) == 2
+    assert {p: p.read_bytes() for p in ref.rglob("*") if p.is_file()} == before

@@ -132,17 +132,28 @@ CLAIMS: List[Claim] = [
 
 CLAIM_COLUMNS = ["claim", "group", "statement", "paper", "metric", "side_a", "side_b", "n_a", "n_b", "mean_a",
                  "mean_b", "diff", "diff_ci95_low", "diff_ci95_high", "welch_ci95_low", "welch_ci95_high",
-                 "prob_improvement", "margin", "verdict", "seeds_to_decide"]
+                 "prob_improvement", "margin", "verdict", "seeds_to_decide", "machines"]
+
+
+def _side_rows(scores: Sequence[Dict[str, str]], side: Side, metric: str) -> Dict[int, Dict[str, str]]:
+    by_seed: Dict[int, Dict[str, str]] = {}
+    for r in scores:
+        if (r["metric"] == metric and r["experiment"] == side.experiment and r["arm"] == side.arm
+                and r["method"] == side.method and r["task"] == side.task and r["role"] == side.role):
+            by_seed.setdefault(int(r["seed"]), r)
+    return by_seed
 
 
 def side_values(scores: Sequence[Dict[str, str]], side: Side, metric: str) -> List[float]:
     """One value per seed (ascending seed) of a side's cell and metric."""
-    by_seed: Dict[int, float] = {}
-    for r in scores:
-        if (r["metric"] == metric and r["experiment"] == side.experiment and r["arm"] == side.arm
-                and r["method"] == side.method and r["task"] == side.task and r["role"] == side.role):
-            by_seed.setdefault(int(r["seed"]), float(r["value"]))
-    return [by_seed[s] for s in sorted(by_seed)]
+    by_seed = _side_rows(scores, side, metric)
+    return [float(by_seed[s]["value"]) for s in sorted(by_seed)]
+
+
+def side_machines(scores: Sequence[Dict[str, str]], c: Claim) -> str:
+    """The CPUs both sides' runs ran on ("; "-joined, sorted)."""
+    rows = list(_side_rows(scores, c.a, c.metric).values()) + list(_side_rows(scores, c.b, c.metric).values())
+    return "; ".join(sorted({r.get("machine") or "unknown" for r in rows})) if rows else ""
 
 
 def claim_rows(scores: Sequence[Dict[str, str]], resamples: int = 10_000,
@@ -165,7 +176,7 @@ def claim_rows(scores: Sequence[Dict[str, str]], resamples: int = 10_000,
                      # our own questions are not reproductions: their "A > B" is "supported"
                      "verdict": cmp.verdict_text().replace(stats.REPRODUCED, "supported")
                      if c.group != "paper" else cmp.verdict_text(),
-                     "seeds_to_decide": cmp.seeds_to_decide})
+                     "seeds_to_decide": cmp.seeds_to_decide, "machines": side_machines(scores, c)})
     return rows
 
 

@@ -4,11 +4,16 @@ from those two files alone.
     python -m maniskill_dualher.report runs/quick                       # a sweep folder with its runs
     python -m maniskill_dualher.report results/reference                # a committed folder: from its scores
     python -m maniskill_dualher.report runs/quick --reference results/reference   # overlay the reference
+    python -m maniskill_dualher.report results/reference --merge runs/more        # add another sweep's cells
 
 A folder with finished runs gets fresh ``scores.csv``/``curves.csv``; a folder without run folders is
 rebuilt from the ones it holds (byte-identical tables and claims: no wall time, seeded statistics). The
 report never replaces scores with fewer: where the folder's ``scores.csv`` names runs it cannot find, or
 where there is nothing to build from, it refuses with one line and exit code 2, writing nothing.
+
+``--merge OTHER`` adds another sweep's scores and curves to a results folder (one without run folders): only
+cells (experiment, arm, method, task, seed, stage, role) the folder does not have yet, only from a sweep with
+the same budgets and settings, each row keeping the machine it ran on; ``sweep.json`` lists what was merged.
 """
 from __future__ import annotations
 
@@ -108,6 +113,16 @@ def summary_md(folder: Path, scores, tables, claims, figures: List[str], unfinis
              "directions, not absolute counts.")
     if sweep.get("settings"):
         s.append(f"Settings given to this sweep: `{' '.join(sweep['settings'])}`.")
+    for m in sweep.get("merged", []):
+        s.append(f"Merged in (`report --merge`): {m['runs']} runs of the sweep `{m['folder']}` "
+                 f"(experiments {', '.join(m['experiments'])}; run names prefixed `{m['folder']}/`).")
+    machines: Dict[str, set] = {}
+    for r in scores:
+        machines.setdefault(r.get("machine") or "unknown", set()).add(r["experiment"])
+    if machines:
+        s.append("Machines (from each run's `provenance.json`; `machine` in `scores.csv`, `machines` in "
+                 "`claims.csv`): " + "; ".join(f"{m}: {', '.join(sorted(e))}" for m, e in sorted(machines.items()))
+                 + ".")
     s += ["", "Every table, claim and figure here is computed from `scores.csv` (one value per run and metric) and "
           "`curves.csv` (one row per evaluation): `python -m maniskill_dualher.report <this folder>` rebuilds them "
           "without the run folders.", ""]
@@ -147,6 +162,41 @@ def summary_md(folder: Path, scores, tables, claims, figures: List[str], unfinis
     if unfinished:
         s += ["## Unfinished runs (not counted)", ""] + [f"- {u}" for u in unfinished] + [""]
     return "\n".join(s)
+
+
+MERGE_SAME = ("preset", "budgets", "preset_settings", "settings", "task_order", "carry_replay")
+CELL_ID = ("experiment", "arm", "method", "task", "seed", "stage", "role")
+
+
+def merge_into(folder: Path, other: Path) -> None:
+    """Add ``other``'s scores and curves (cells ``folder`` lacks) to ``folder``; refuse anything ambiguous."""
+    folder, other = Path(folder), Path(other)
+    for f in (folder, other):
+        if not ((f / SCORES).is_file() and (f / CURVES).is_file()):
+            raise ConfigError(f"--merge needs {SCORES} and {CURVES} in {f} (run the report on it first)")
+    if (folder / rundir.RUNS_DIR).is_dir():
+        raise ConfigError(f"{folder} holds run folders: merge into a results folder built from scores alone")
+    mine, theirs = rundir.read_sweep(folder) or {}, rundir.read_sweep(other) or {}
+    differ = [k for k in MERGE_SAME if mine.get(k) != theirs.get(k)]
+    if differ:
+        raise ConfigError(f"{other} is a sweep with other {differ[0]} than {folder}: its cells would not compare")
+    scores, new = read_rows(folder / SCORES), read_rows(other / SCORES)
+    have = {tuple(r[k] for k in CELL_ID) for r in scores}
+    clash = sorted({tuple(r[k] for k in CELL_ID) for r in new} & have)
+    if clash:
+        raise ConfigError(f"{folder} already has cell {'/'.join(clash[0])} that {other} also has; "
+                          f"merge only new cells (e.g. run the sweep with other --experiments)")
+    if not new:
+        raise ConfigError(f"{other / SCORES} holds no scores")
+    prefix = other.name + "/"
+    curves = read_rows(folder / CURVES) + [{**r, "run": prefix + r["run"]} for r in read_rows(other / CURVES)]
+    scores += [{**r, "run": prefix + r["run"]} for r in new]
+    merged = list(mine.get("merged", [])) + [{
+        "folder": other.name, "experiments": theirs.get("experiments", []),
+        "runs": len({r["run"] for r in new}), "machines": sorted({r.get("machine", "") for r in new} - {""})}]
+    atomic_write_text(folder / SCORES, csv_text(scores, SCORE_COLUMNS))
+    atomic_write_text(folder / CURVES, csv_text(curves, CURVE_COLUMNS))
+    rundir.write_json(folder / rundir.SWEEP, {**mine, "merged": merged})
 
 
 def build_report(folder, resamples: int = 10_000, reference: Optional[Path] = None) -> List[Path]:
@@ -207,11 +257,15 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                                   "from its run folders, or from its scores.csv/curves.csv; no training.")
     p.add_argument("folder", help="a sweep's --out folder (e.g. runs/quick) or a committed results folder")
     p.add_argument("--reference", help="another results folder whose curves are drawn beside these (dotted)")
+    p.add_argument("--merge", metavar="OTHER", help="first add another sweep folder's scores/curves (new cells only, "
+                                                   "same budgets and settings) to FOLDER, a results folder")
     p.add_argument("--resamples", type=int, default=10_000, help="bootstrap resamples (default: %(default)s)")
     a = p.parse_args(argv)
     try:
         if a.resamples < 100:
             raise ConfigError(f"--resamples must be >= 100, got {a.resamples}")
+        if a.merge:
+            merge_into(Path(a.folder), Path(a.merge))
         written = build_report(Path(a.folder), a.resamples, Path(a.reference) if a.reference else None)
     except ConfigError as e:
         print(f"error: {e}", file=sys.stderr)

@@ -17,9 +17,10 @@ import numpy as np
 
 from .. import rundir
 from ..config import RunConfig
+from ..provenance import machine_label
 
 CELL_KEYS = ["experiment", "arm", "task", "chain", "method", "variant", "seed", "stage", "role"]
-SCORE_COLUMNS = CELL_KEYS + ["metric", "value", "run"]
+SCORE_COLUMNS = CELL_KEYS + ["metric", "value", "run", "machine"]
 CURVE_KEYS = ["eval_success_rate", "eval_return", "train_successes", "train_episodes"]
 CURVE_COLUMNS = CELL_KEYS + ["env_steps"] + CURVE_KEYS + ["run"]
 
@@ -30,6 +31,7 @@ class Run:
     cfg: RunConfig
     rows: List[Dict[str, float]]       # metrics.csv, one per evaluation
     cells: List[dict]
+    machine: str = ""                  # the CPU(s) it ran on, from provenance.json (" + " if resumed elsewhere)
 
     @property
     def trained_rows(self) -> List[Dict[str, float]]:
@@ -104,8 +106,18 @@ def load_runs(folder: Path) -> Tuple[List[Run], List[str]]:
             unfinished.append(rel)
             continue
         cfg = RunConfig.from_dict(rundir.read_json(d / rundir.CONFIG))
-        runs.append(Run(rel, cfg, rows, list(cell["cells"])))
+        runs.append(Run(rel, cfg, rows, list(cell["cells"]), run_machine(d)))
     return runs, unfinished
+
+
+def run_machine(run_dir: Path) -> str:
+    """The machines a run's process starts ran on (provenance.json), in order, without repeats."""
+    try:
+        starts = (rundir.read_json(run_dir / rundir.PROVENANCE) or {}).get("starts", [])
+    except ValueError:
+        return ""
+    labels = [machine_label(s.get("cpu")) for s in starts if isinstance(s, dict)]
+    return " + ".join(dict.fromkeys(lb for lb in labels if lb))
 
 
 def _num(v: float) -> str:
@@ -124,7 +136,7 @@ def score_rows(runs: List[Run]) -> List[Dict[str, str]]:
             for m, v in values.items():
                 if isinstance(v, float) and math.isnan(v):
                     continue
-                out.append({**_cell_values(c), "metric": m, "value": _num(v), "run": r.rel})
+                out.append({**_cell_values(c), "metric": m, "value": _num(v), "run": r.rel, "machine": r.machine})
     return out
 
 
