@@ -17,6 +17,10 @@ Tasks ReachTarget-v1 and CloseBox-v1 (``--tasks``). Contenders, each on one thre
 Same episodes for all: the episode length is ours (the preset's ``max_episode_steps``, read from the env ours
 builds); if ours ends episodes on success (``cfg.terminate_on_success``), the peers' env passes ManiSkill's
 ``terminated`` (= success) through, otherwise episodes are fixed-length. Same control and reward mode.
+``sb3_own`` and ``sbx_own`` are the same peers at **their own convention**, as their users run HER: training
+episodes of that length that do not end on success (evaluation as for everyone). Both comparisons are fair
+questions: equal semantics asks "which code learns this MDP faster", the own convention "how long would a
+user of that library wait".
 
 Evaluation: 10 fixed episodes (``--eval-episodes``) every ``--eval-every`` env steps (default 1000),
 deterministic policy, reset seeds ``maniskill_dualher.envs.EVAL_SEED_BASE + i`` for all contenders (the
@@ -62,13 +66,19 @@ import torch  # noqa: E402
 
 THRESHOLD = 0.9
 TASKS = ("ReachTarget-v1", "CloseBox-v1")
-CONTENDERS = ("ours", "sb3", "sbx")
+CONTENDERS = ("ours", "sb3", "sbx", "sb3_own", "sbx_own")
 DEFAULT_OUT = os.path.join(REPO, "bench", "results", "time_to_success.json")
 # rl-baselines3-zoo goal-task settings (FetchReach: net [64, 64], learning_starts 1000; the goal tasks' lr,
 # tau, gamma, buffer and HER settings)
 ZOO = dict(net_arch=[64, 64], learning_rate=1e-3, tau=0.05, gamma=0.95, batch_size=256, buffer_size=1_000_000,
            learning_starts=1000, n_sampled_goal=4, train_freq=1, gradient_steps=1)
-NAMES = {"ours": "ours sac_her_per", "sb3": "SB3 SAC + HER", "sbx": "SBX SAC + HER"}
+NAMES = {"ours": "ours sac_her_per", "sb3": "SB3 SAC + HER", "sbx": "SBX SAC + HER",
+         "sb3_own": "SB3, own convention", "sbx_own": "SBX, own convention"}
+
+
+def peer_library(contender: str) -> str:
+    """sb3_own -> sb3: the library behind a contender."""
+    return contender[:-len("_own")] if contender.endswith("_own") else contender
 
 
 # --------------------------------------------------------------------------- settings
@@ -151,12 +161,15 @@ def run_ours(task: str, seed: int, args, rules: dict) -> dict:
         shutil.rmtree(tmp, ignore_errors=True)
 
 
-def run_peer(lib: str, task: str, seed: int, args, rules: dict) -> dict:
+def run_peer(contender: str, task: str, seed: int, args, rules: dict) -> dict:
+    lib, own = peer_library(contender), contender.endswith("_own")
     kw = dict(max_episode_steps=rules["max_episode_steps"], control_mode=rules["control_mode"],
               reward_mode=rules["reward_mode"], terminate_on_success=rules["terminate_on_success"])
     t_setup = time.perf_counter()
     torch.set_num_threads(1)
-    env, eval_env = GoalDictEnv(task, **kw), GoalDictEnv(task, **kw)
+    # own convention: training episodes never end on success; evaluation keeps the shared rules
+    env = GoalDictEnv(task, **{**kw, "terminate_on_success": False}) if own else GoalDictEnv(task, **kw)
+    eval_env = GoalDictEnv(task, **kw)
     model = make_peer_sac(lib, env, seed, **ZOO)
     setup_s = time.perf_counter() - t_setup
     E, cap, T = args.eval_every, args.max_steps, rules["max_episode_steps"]
@@ -177,7 +190,8 @@ def run_peer(lib: str, task: str, seed: int, args, rules: dict) -> dict:
                 break
         return dict(reached=reached is not None, curve=curve, setup_s=round(setup_s, 3), wall_s_total=round(wall, 3),
                     env_steps_total=int(model.num_timesteps), updates_total=int(model._n_updates),
-                    eval_state_mismatches=int(mismatches), settings=dict(ZOO, lib=lib_version(lib)))
+                    eval_state_mismatches=int(mismatches), settings=dict(ZOO, lib=lib_version(lib),
+                                                                         train_episodes_end_on_success=not own))
     finally:
         model.get_env().close()
         eval_env.close()
@@ -204,16 +218,17 @@ def summarize(runs, tasks, contenders) -> dict:
             per[c] = {"runs": len(rs), "reached": sum(r["reached"] for r in rs),
                       "wall_s": _stats(wall), "env_steps": _stats(steps),
                       "errors": sum(1 for r in runs if r["task"] == task and r["contender"] == c and r.get("error"))}
-        ratios = {}
-        if "ours" in per:
+        ratios = {}  # per convention: the fastest peer's median over ours'
+        for convention, group in (("equal semantics", ("sb3", "sbx")), ("peers' own convention", ("sb3_own", "sbx_own"))):
             for key in ("wall_s", "env_steps"):
-                peers = {c: per[c][key]["median"] for c in per if c != "ours"}
-                if not peers:
+                peers = {c: per[c][key]["median"] for c in per if c in group}
+                if "ours" not in per or not peers:
                     continue
                 best = min(peers, key=lambda c: peers[c])
                 ours_m = per["ours"][key]["median"]
                 ratio = None if math.isinf(ours_m) or math.isinf(peers[best]) else peers[best] / ours_m
-                ratios[key] = {"fastest_peer": best, "peer_median": peers[best], "ours_median": ours_m, "ratio": ratio}
+                ratios.setdefault(convention, {})[key] = {"fastest_peer": best, "peer_median": peers[best],
+                                                           "ours_median": ours_m, "ratio": ratio}
         out[task] = {"contenders": per, "fastest_peer_over_ours": ratios}
     return out
 
@@ -246,19 +261,19 @@ def print_summary(summary, rules_by_task, args) -> None:
             err = f"  ({st['errors']} failed)" if st["errors"] else ""
             print(f"{NAMES[c]:22s} {st['reached']:>3d}/{st['runs']:<4d}  {_range(st['wall_s'], 1):>40s}  "
                   f"{_range(st['env_steps'], 0):>40s}{err}")
-        for key, label in (("wall_s", "median wall s"), ("env_steps", "median env steps")):
-            r = s["fastest_peer_over_ours"].get(key)
-            if r is None:
-                continue
-            peer = NAMES[r["fastest_peer"]]
-            if r["ratio"] is not None:
-                print(f"fastest peer / ours, {label}: {peer} {_fmt(r['peer_median'], 1 if key == 'wall_s' else 0)} / "
-                      f"ours {_fmt(r['ours_median'], 1 if key == 'wall_s' else 0)} = {r['ratio']:.2f}x")
-            elif math.isinf(r["ours_median"]):
-                print(f"fastest peer / ours, {label}: n/a (ours' median run did not reach {THRESHOLD})")
-            else:
-                print(f"fastest peer / ours, {label}: n/a (no peer's median run reached {THRESHOLD}; ours: "
-                      f"{_fmt(r['ours_median'], 1 if key == 'wall_s' else 0)})")
+        for convention, by_key in s["fastest_peer_over_ours"].items():
+            for key, label in (("wall_s", "median wall s"), ("env_steps", "median env steps")):
+                r = by_key.get(key)
+                if r is None:
+                    continue
+                peer, d = NAMES[r["fastest_peer"]], 1 if key == "wall_s" else 0
+                head = f"fastest peer / ours ({convention}), {label}:"
+                if r["ratio"] is not None:
+                    print(f"{head} {peer} {_fmt(r['peer_median'], d)} / ours {_fmt(r['ours_median'], d)} = {r['ratio']:.2f}x")
+                elif math.isinf(r["ours_median"]):
+                    print(f"{head} n/a (ours' median run did not reach {THRESHOLD})")
+                else:
+                    print(f"{head} n/a (no peer's median run reached {THRESHOLD}; ours: {_fmt(r['ours_median'], d)})")
 
 
 # --------------------------------------------------------------------------- main
@@ -289,7 +304,9 @@ def main(argv=None) -> int:
     p.add_argument("--max-steps", type=int, default=30_000, help="env-step cap per run (default 30000)")
     p.add_argument("--eval-every", type=int, default=1000, help="env steps between evaluations (default 1000)")
     p.add_argument("--eval-episodes", type=int, default=10, help="fixed evaluation episodes (default 10)")
-    p.add_argument("--contenders", default=",".join(CONTENDERS), help="comma-separated subset of ours,sb3,sbx")
+    p.add_argument("--contenders", default="ours,sb3,sbx",
+                   help=f"comma-separated subset of {','.join(CONTENDERS)} (default ours,sb3,sbx; *_own: the peer at "
+                        f"its own convention, episodes that do not end on success)")
     p.add_argument("--preset", default="quick", help="the sweep preset ours is built from (default quick)")
     p.add_argument("--out", default=DEFAULT_OUT, help="raw results JSON (default bench/results/time_to_success.json)")
     args = p.parse_args(argv)
@@ -301,11 +318,10 @@ def main(argv=None) -> int:
     from maniskill_dualher.experiment.presets import PRESETS
     if args.preset not in PRESETS:
         p.error(f"unknown preset {args.preset!r} (choose {', '.join(PRESETS)})")
-    if "sbx" in contenders:
-        why = sbx_missing()
-        if why is not None:
-            print(f"# SBX skipped ({why}); pip install sbx-rl to add it")
-            contenders.remove("sbx")
+    why = sbx_missing() if any(peer_library(c) == "sbx" for c in contenders) else None
+    if why is not None:
+        print(f"# SBX skipped ({why}); pip install sbx-rl to add it")
+        contenders = [c for c in contenders if peer_library(c) != "sbx"]
     torch.set_num_threads(1)
 
     print(f"# time_to_success: {', '.join(tasks)}; contenders {', '.join(NAMES[c] for c in contenders)}; "
@@ -317,7 +333,7 @@ def main(argv=None) -> int:
     print(f"# ours: {args.preset!r} preset, sac_her_per: {describe_ours(our_config(tasks[0], 0, args))}")
     peers = [c for c in contenders if c != "ours"]
     if peers:
-        print(f"# peers ({'; '.join(lib_version(c) for c in peers)}): " + ", ".join(f"{k} {v}" for k, v in ZOO.items()))
+        print(f"# peers ({'; '.join(lib_version(peer_library(c)) for c in peers)}): " + ", ".join(f"{k} {v}" for k, v in ZOO.items()))
 
     rules_by_task = {}
     doc = {"bench": "time_to_success", "version": 1, "complete": False, "started": _now(), "finished": None,
@@ -326,7 +342,7 @@ def main(argv=None) -> int:
            "settings": {"threshold": THRESHOLD, "tasks": tasks, "seeds": list(range(args.seeds)),
                         "contenders": contenders, "max_steps": args.max_steps, "eval_every": args.eval_every,
                         "eval_episodes": args.eval_episodes, "preset": args.preset, "peers": ZOO,
-                        "versions": {c: lib_version(c) for c in peers}, "episodes": {}},
+                        "versions": {c: lib_version(peer_library(c)) for c in peers}, "episodes": {}},
            "runs": [], "summary": None}
     for task in tasks:
         rules = episode_rules(task, args)

@@ -17,6 +17,9 @@ A run folder (written by ``train.py``; a transfer stage also by ``experiment/pro
     progress.json   env steps done, written by a sweep's worker every few seconds (the sweep's bar reads it)
     events.out.*    TensorBoard
 
+``RunFolder`` is the trainer's handle on its folder (identity check, start records, checkpoint, metrics, done,
+error); the analysis only reads folders, with the functions below.
+
 A sweep folder holds ``sweep.json`` (the definition: which runs exist), ``.sweep.lock`` (one sweep at a
 time; the OS drops it with the process) and ``runs/...``; the report writes ``scores.csv``, ``curves.csv``,
 its tables, plots and summary.md beside them. Every write is atomic (``fileio``).
@@ -108,3 +111,96 @@ def write_json(path: PathLike, obj: dict) -> None:
 
 def read_sweep(folder: PathLike) -> Optional[dict]:
     return read_json(Path(folder) / SWEEP)
+
+
+# --------------------------------------------------------------------------- the trainer's view of its folder
+def differing_keys(a: dict, b: dict, prefix: str = "") -> List[str]:
+    """Dotted names of the keys whose values differ between two nested config dicts (missing counts)."""
+    out = []
+    for k in sorted(set(a) | set(b)):
+        va, vb = a.get(k, "<missing>"), b.get(k, "<missing>")
+        if isinstance(va, dict) and isinstance(vb, dict):
+            out += differing_keys(va, vb, f"{prefix}{k}.")
+        elif va != vb:
+            out.append(prefix + k)
+    return out
+
+
+def load_checkpoint(run_dir: PathLike) -> dict:
+    """A run folder's checkpoint.pt (ConfigError if missing or unreadable)."""
+    import torch  # only where a run happens: the analysis reads folders without torch
+
+    from .config import ConfigError
+    path = Path(run_dir) / CHECKPOINT
+    if not path.is_file():
+        raise ConfigError(f"missing checkpoint: {path}")
+    try:
+        return torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as e:  # a truncated or foreign file
+        raise ConfigError(f"unreadable checkpoint {path}: {type(e).__name__}") from None
+
+
+class RunFolder:
+    """One run's folder as its trainer keeps it: the identity check, the start records, the checkpoint, the
+    metrics, done.json and error.txt. Every write is atomic."""
+
+    def __init__(self, path: PathLike):
+        self.path = Path(path)
+
+    def check_identity(self, config_json: str) -> None:
+        """Refuse a folder that holds a run of another config (ConfigError naming the keys that differ)."""
+        from .config import ConfigError, run_identity
+        cfg_path = self.path / CONFIG
+        if not cfg_path.is_file():
+            return
+        try:
+            old = json.loads(cfg_path.read_text())
+        except json.JSONDecodeError:
+            raise ConfigError(f"{cfg_path} is not valid JSON") from None
+        old, new = run_identity(old), run_identity(json.loads(config_json))
+        if old != new:
+            keys = ", ".join(differing_keys(old, new)) or "?"
+            raise ConfigError(f"{self.path} holds a run of a different config (differs in: {keys}); use another --out")
+
+    def record_start(self, config_json: str, init_from: Optional[PathLike], carry_replay: bool) -> None:
+        """config.json, lineage.json and a provenance.json entry for this process start."""
+        from .provenance import record_start
+        self.path.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(self.path / CONFIG, config_json + "\n")
+        write_json(self.path / ORIGIN, {"init_from": str(init_from) if init_from else None,
+                                       "carry_replay": bool(carry_replay)})
+        record_start(self.path)
+
+    @property
+    def has_checkpoint(self) -> bool:
+        return (self.path / CHECKPOINT).is_file()
+
+    def load_checkpoint(self) -> dict:
+        return load_checkpoint(self.path)
+
+    def save_checkpoint(self, state: dict) -> None:
+        from .fileio import atomic_torch_save
+        atomic_torch_save(state, self.path / CHECKPOINT)
+
+    def write_metrics(self, rows: List[dict]) -> None:
+        write_metrics(self.path, rows)
+
+    @property
+    def done(self) -> bool:
+        return is_done(self.path)
+
+    def final(self) -> dict:
+        return read_done(self.path)["final"]
+
+    def finish(self, final: dict, **extra) -> None:
+        write_done(self.path, final, **extra)
+
+    def write_error(self) -> None:
+        """error.txt: UTC time and the traceback of the exception being handled."""
+        import datetime
+        import traceback
+        stamp = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
+        try:
+            atomic_write_text(self.path / ERROR, f"failed at {stamp} (UTC)\n{traceback.format_exc()}")
+        except OSError:
+            pass  # an unwritable folder must not hide the original exception
