@@ -80,16 +80,10 @@ class EnvEpisodes:
         if self._arrays is None:
             self._arrays = {k: np.zeros((self.max_steps, self.n_envs) + np.shape(step[k])[1:], np.asarray(step[k]).dtype)
                             for k in KEYS}
-        rows = self.length[idx]
-        if len(idx) and rows.max() >= self.max_steps:  # an env whose episodes outlast the clock (plain gym)
-            self._grow(int(rows.max()) + 1)
+        rows = self.length[idx]  # < max_steps: an episode ends at its max_steps-th step and restarts before the next
         for k in KEYS:
             self._arrays[k][rows, idx] = np.asarray(step[k])[idx]
         self.length[idx] += 1
-
-    def _grow(self, steps: int) -> None:
-        self._arrays = {k: np.concatenate([v, np.zeros((max(steps, 2 * v.shape[0]) - v.shape[0],) + v.shape[1:],
-                                                        v.dtype)]) for k, v in self._arrays.items()}
 
     # ------------------------------------------------------------------ episodes out
     def pop(self, i: int) -> Episode:

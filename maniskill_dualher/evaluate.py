@@ -100,36 +100,20 @@ def make_eval_env(policy: Policy, env_id: Optional[str] = None) -> BatchEnv:
     return env
 
 
-def _success_terminates(env: BatchEnv) -> bool:
-    """As Trainer: ManiSkill's ``terminated`` means success; other envs say so with a class attribute."""
-    return bool(env.spec.is_maniskill or getattr(env.unwrapped, "terminate_on_success", False))
-
-
 def _episode(policy: Policy, env: BatchEnv, seed: int, terminate_on_success: bool, trace: bool) -> dict:
-    """One episode under the training evaluation's rules (Trainer._rollout/_step), deterministic policy."""
-    flat = env.reset(seed)
-    max_steps, ends_on_success = env.spec.max_episode_steps, _success_terminates(env)
-    flats, succs = [flat[0].copy()], [False]
-    ret, t, success, succ_step = 0.0, 0, False, None
-    while True:
-        action = policy.act(env.policy_input(flat), deterministic=True)
-        flat, rew, term, trunc, succ = env.step(action)
-        t += 1
-        s = bool(succ[0]) if succ is not None else False
-        if ends_on_success and not terminate_on_success:
-            term = np.zeros_like(term)
-        ret += float(rew[0])
-        if s and not success:
-            success, succ_step = True, t
-        if trace:
-            flats.append(flat[0].copy())
-            succs.append(s)
-        if bool(term[0] or trunc[0]) or t >= max_steps:
-            break
-    out = {"seed": int(seed), "success": success, "success_at_end": s, "return": ret, "length": t,
-           "first_success_step": succ_step}
-    if trace:
-        out["flats"], out["successes"] = np.stack(flats), np.array(succs)
+    """One episode under the training evaluation's rules (``episodes.EnvEpisodes``, as ``Trainer.evaluate``),
+    deterministic policy; ``trace``: also every flat observation and success flag (for a movie)."""
+    from .episodes import EnvEpisodes
+    ep = EnvEpisodes(env, terminate_on_success).rollout(seed, lambda x: policy.act(x, deterministic=True))[0]
+    succ = ep.success[:, 0].astype(bool)
+    hits = np.flatnonzero(succ)
+    out = {"seed": int(seed), "success": bool(hits.size), "success_at_end": bool(succ[-1]),
+           "return": float(ep.reward.sum()), "length": int(ep.length),
+           "first_success_step": int(hits[0]) + 1 if hits.size else None}
+    if trace:  # our tasks only (goal envs): the flat layout is observation | achieved goal | desired goal
+        first = np.concatenate([ep.obs[:, 0], ep.achieved_goal[:, 0], ep.desired_goal[:, 0]], -1)
+        last = np.concatenate([ep.next_obs[-1:, 0], ep.next_achieved_goal[-1:, 0], ep.desired_goal[-1:, 0]], -1)
+        out["flats"], out["successes"] = np.concatenate([first, last]), np.concatenate([[False], succ])
     return out
 
 

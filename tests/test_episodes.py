@@ -158,3 +158,35 @@ def test_a_nan_loss_stops_the_run_keeping_the_last_good_checkpoint(tmp_path):
     state = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=False)
     assert 100 <= state["counters"]["env_steps"] <= 260
     assert not (tmp_path / "run" / "done.json").exists()
+
+
+def test_env_episodes_own_clock_and_arrays(tmp_path):
+    """EnvEpisodes (episodes.py) on its own: each env's steps land in its own episode arrays; an evaluation's
+    EnvEpisodes on the same env leaves the training one's arrays alone; a rollout ends each env on its own;
+    a cut hands over the episodes in flight and marks those envs for a reset."""
+    from maniskill_dualher.envs import make_env
+    from maniskill_dualher.episodes import EnvEpisodes
+    env = make_env(point_cfg(n=3))
+    try:
+        train, ev = EnvEpisodes(env, True), EnvEpisodes(env, True)
+        train.reset(np.arange(3), [1, 2, 3])
+        flats, actions = [], np.random.default_rng(0).uniform(-0.1, 0.1, (5, 3, 2)).astype(np.float32)
+        for a in actions:  # tiny moves: no env reaches its goal (0.15 away, tolerance 0.1) in 5 steps
+            flats.append(train.flat.copy())
+            assert not train.step(a).any()
+        before = {k: v.copy() for k, v in train._arrays.items()}
+        out = ev.rollout(100, lambda x: np.zeros((3, 2), np.float32))  # standing still: every env runs to 20
+        assert [e.length for e in out] == [20, 20, 20] and ev.pending.all()
+        for k, v in train._arrays.items():
+            np.testing.assert_array_equal(v, before[k])
+        assert list(train.t) == [5, 5, 5]  # its own clock
+        cut = train.cut_in_flight()
+        assert len(cut) == 3 and train.pending.all() and (train.length == 0).all() and train.cut_in_flight() == []
+        o, _, dg = env.split(np.stack(flats))
+        for i, ep in enumerate(cut):
+            assert ep.length == 5 and not ep.terminated.any() and not ep.success.any()
+            np.testing.assert_array_equal(ep.obs[:, 0], o[:, i])
+            np.testing.assert_array_equal(ep.desired_goal[:, 0], dg[:, i])
+            np.testing.assert_array_equal(ep.action[:, 0], actions[:, i])
+    finally:
+        env.close()
