@@ -1,5 +1,6 @@
 """Command lines: the plumbing shared by train, sweep and report (one-line errors, exit code 2), and
-``python -m maniskill_dualher.train``'s flags (every RunConfig field, --preset, --set KEY=VALUE)."""
+``python -m maniskill_dualher.train``'s flags and how they become a RunConfig (every RunConfig field, --config,
+--preset, --set KEY=VALUE); ``train.main`` runs them."""
 from __future__ import annotations
 
 import argparse
@@ -125,18 +126,3 @@ def train_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     _field_flags(p)
     return p
-
-
-def train_main(argv=None) -> int:
-    """``python -m maniskill_dualher.train``: one run (or its resume), its final metrics row as JSON."""
-    from .train import run_training  # heavy (torch, the simulator): only when a run happens
-    args = train_parser().parse_args(argv)
-    try:
-        cfg = train_config(args)
-        final = run_training(cfg, args.out, init_from=args.init_from, carry_replay=args.carry_replay,
-                             show_progress=not args.no_progress, keep_replay=args.keep_replay)
-    except ConfigError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    print(json.dumps(final))
-    return 0

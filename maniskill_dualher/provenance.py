@@ -1,7 +1,7 @@
 """Where and with what a result was made: code version, library versions, machine.
 
 ``provenance()`` returns a JSON-ready dict; ``train.py`` appends one per process start to a run folder's
-``provenance.json`` (``{"starts": [...]}``, ``record_start``). Nothing here imports a heavy library that is
+``provenance.json`` (``{"starts": [...]}``, ``rundir.record_start``). Nothing here imports a heavy library that is
 not already loaded, and every probe that can fail (no git, no /proc) gives ``None`` instead.
 """
 from __future__ import annotations
@@ -121,26 +121,6 @@ def provenance(path: Union[str, Path, None] = None) -> dict:
         "pid": os.getpid(),
         "argv": list(sys.argv),
     }
-
-
-def record_start(run_dir: Union[str, Path], info: Optional[dict] = None) -> dict:
-    """Append ``info`` (default: ``provenance()``) to ``run_dir/provenance.json``'s ``starts`` (atomic)."""
-    import json
-
-    from .fileio import atomic_write_text
-    from .rundir import PROVENANCE
-
-    path = Path(run_dir) / PROVENANCE
-    starts = []
-    if path.is_file():
-        try:
-            starts = list(json.loads(path.read_text()).get("starts", []))
-        except (ValueError, AttributeError):
-            starts = []  # a foreign or broken file: start over rather than stop the run
-    starts.append(info if info is not None else provenance())
-    doc = {"starts": starts}
-    atomic_write_text(path, json.dumps(doc, indent=2, sort_keys=True) + "\n")
-    return doc
 
 
 if __name__ == "__main__":

@@ -140,6 +140,23 @@ def load_checkpoint(run_dir: PathLike) -> dict:
         raise ConfigError(f"unreadable checkpoint {path}: {type(e).__name__}") from None
 
 
+def record_start(run_dir: PathLike, info: Optional[dict] = None) -> dict:
+    """Append ``info`` (default: ``provenance.provenance()``) to ``run_dir/provenance.json``'s ``starts``."""
+    path = Path(run_dir) / PROVENANCE
+    starts = []
+    if path.is_file():
+        try:
+            starts = list(json.loads(path.read_text()).get("starts", []))
+        except (ValueError, AttributeError):
+            starts = []  # a foreign or broken file: start over rather than stop the run
+    if info is None:
+        from .provenance import provenance
+        info = provenance()
+    doc = {"starts": starts + [info]}
+    atomic_write_text(path, json.dumps(doc, indent=2, sort_keys=True) + "\n")
+    return doc
+
+
 class RunFolder:
     """One run's folder as its trainer keeps it: the identity check, the start records, the checkpoint, the
     metrics, done.json and error.txt. Every write is atomic."""
@@ -164,7 +181,6 @@ class RunFolder:
 
     def record_start(self, config_json: str, init_from: Optional[PathLike], carry_replay: bool) -> None:
         """config.json, lineage.json and a provenance.json entry for this process start."""
-        from .provenance import record_start
         self.path.mkdir(parents=True, exist_ok=True)
         atomic_write_text(self.path / CONFIG, config_json + "\n")
         write_json(self.path / ORIGIN, {"init_from": str(init_from) if init_from else None,

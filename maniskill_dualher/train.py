@@ -17,7 +17,9 @@ as it ends (``episodes.EnvEpisodes``: each env's clock and the episode arrays). 
 """
 from __future__ import annotations
 
+import json
 import math
+import sys
 import time
 from pathlib import Path
 from typing import List, Optional
@@ -374,9 +376,24 @@ def run_training(cfg: RunConfig, out_dir, init_from=None, carry_replay: bool = F
             trainer.env.close()
 
 
-# the command line (cli.py); ``python -m maniskill_dualher.train`` runs it
-from .cli import train_config as config_from_args, train_main as main, train_parser as build_parser  # noqa: E402,F401
+# --------------------------------------------------------------------------- python -m maniskill_dualher.train
+# (the flags and how they become a RunConfig live in cli.py)
+from .cli import train_config as config_from_args, train_parser as build_parser  # noqa: E402
+
+
+def main(argv=None) -> int:
+    """One run (or its resume); prints its final metrics row as JSON; bad input: one line, exit code 2."""
+    args = build_parser().parse_args(argv)
+    try:
+        cfg = config_from_args(args)
+        final = run_training(cfg, args.out, init_from=args.init_from, carry_replay=args.carry_replay,
+                             show_progress=not args.no_progress, keep_replay=args.keep_replay)
+    except ConfigError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    print(json.dumps(final))
+    return 0
+
 
 if __name__ == "__main__":
-    import sys
     sys.exit(main())
