@@ -278,7 +278,7 @@ def test_make_stages_follows_the_paper():
     assert protocol.stage_dirname(st, 1, True) != protocol.stage_dirname(st2, 1, True)
     assert protocol.stage_dirname(st, 0, True) != protocol.stage_dirname(st, 0, False)
     mixed = [st[0], _tiny("CloseBox-v1", method="sac")]
-    with pytest.raises(protocol.ConfigError, match="one method"):
+    with pytest.raises(protocol.ConfigError, match="cannot adapt from a 'dual_buffer' prior"):
         protocol.validate_chain(mixed)
 
 
