@@ -101,10 +101,13 @@ CLAIMS: List[Claim] = [
                                      "changes the count by"),
     Claim("r_matched", "as many R updates as sac_her_per (1/0.6 updates per step) > the paper's dual buffer: "
                        "successful episodes", "", N, Side("e_share", "r_matched", DUAL), _t(DUAL),
-          relative_margin=True, group="ablation"),
+          relative_margin=True, group="ablation",
+          explains="E's share as missing R updates: 1/0.6 updates per env step (as many from R as SAC+HER+PER) "
+                   "changes the dual buffer's count by"),
     Claim("e_target", "E holding only target-task successes > E carried from the source tasks: successful "
                       "episodes", "", N, Side("e_content", "e_target_only", DUAL), _t(DUAL), relative_margin=True,
-          group="ablation"),
+          group="ablation", explains="what E holds: E with only the target task's successes (not carried from the "
+                                     "source tasks) changes the count by"),
     Claim("e_episodes", "E of whole successful episodes (section 4.2) > E of reward-1 transitions (Alg. 1): "
                         "successful episodes", "", N, Side("e_content", "e_episodes", DUAL), _t(DUAL),
           relative_margin=True, group="ablation"),
