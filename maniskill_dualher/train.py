@@ -13,7 +13,7 @@ one env).
 Episodes end on success when ``terminate_on_success`` (the paper, section 4.1) or at ``max_episode_steps``;
 with N parallel envs each env's episode ends on its own and goes to replay (with its hindsight goals) as soon
 as it ends (``episodes.EnvEpisodes``: each env's clock and the episode arrays). Evaluation has its own
-``EnvEpisodes``. The command line lives in ``cli.py``.
+``EnvEpisodes``. The command line's flags and their RunConfig live in ``cli.py``.
 """
 from __future__ import annotations
 
