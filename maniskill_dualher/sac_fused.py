@@ -32,42 +32,68 @@ _HALF_LOG_2PI = 0.5 * math.log(2 * math.pi)
 
 
 class Layers:
-    """One network's affine layers in the form ``y = x @ W + b`` with E members, ReLU between layers.
+    """One network's affine layers in the form ``y = x @ W + b`` with E members, ReLU between layers, for a
+    pack of S agents (the same network of S runs, ``sac_pack.py``) or for one (S = 1).
 
     Ensembles store W as (E, in, out) and b as (E, 1, out); an ``nn.Linear`` stack (actor, V) is the case E = 1
-    with W = weight.T, so one forward and one backward serve every network. The backward returns gradients in
-    the parameters' own layout, where the optimizer expects them."""
+    with W = weight.T, so one forward and one backward serve every network. A pack's members are its agents'
+    members in agent order (S * E); for one agent the parameters are used in place, for a pack ``refresh``
+    stacks them once per update. The backward returns gradients in the parameters' own layout (stacked over
+    the pack's agents), where the optimizer expects them."""
 
-    def __init__(self, module: nn.Module, low_precision: bool):
-        if isinstance(module, nn.Sequential):
-            lin = [m for m in module if isinstance(m, nn.Linear)]
-            self.weights = [m.weight for m in lin]
-            self.biases = [m.bias for m in lin]
-            self.linear = True
-        else:  # EnsembleMLP
-            self.weights = list(module.weights)
-            self.biases = list(module.biases)
-            self.linear = False
-        self.params = [p for wb in zip(self.weights, self.biases) for p in wb]  # the order of backward's grads
-        self.n = 1 if self.linear else self.weights[0].shape[0]
-        last = len(self.weights) - 1
+    def __init__(self, modules, low_precision: bool):
+        modules = list(modules) if isinstance(modules, (list, tuple)) else [modules]
+        self.linear = isinstance(modules[0], nn.Sequential)
+        self.own: List[Tuple[List[torch.Tensor], List[torch.Tensor]]] = []  # per agent: (weights, biases)
+        for m in modules:
+            if self.linear:
+                lin = [layer for layer in m if isinstance(layer, nn.Linear)]
+                self.own.append(([layer.weight for layer in lin], [layer.bias for layer in lin]))
+            else:  # EnsembleMLP
+                self.own.append((list(m.weights), list(m.biases)))
+        self.agents = len(modules)
+        self.per_agent = 1 if self.linear else self.own[0][0][0].shape[0]  # members of one agent
+        self.n = self.agents * self.per_agent
+        # per agent, the order of backward's grads
+        self.params_of = [[p for wb in zip(ws, bs) for p in wb] for ws, bs in self.own]
+        self.params = self.params_of[0]
+        last = len(self.own[0][0]) - 1
         # hidden-to-hidden layers (all but the first and the last) get bf16 inputs when asked
         self.bf16 = [low_precision and 0 < k < last for k in range(last + 1)]
+        self.refresh()
+
+    def refresh(self) -> None:
+        """This update's weights: the parameters themselves for one agent, stacked copies for a pack."""
+        ws = [[w.detach() for w in o[0]] for o in self.own]
+        bs = [[b.detach() for b in o[1]] for o in self.own]
+        if self.agents == 1:
+            self.W, self.B = ws[0], bs[0]
+        else:  # linear: (S, out, in) and (S, out); ensembles: (S * E, in, out) and (S * E, 1, out)
+            join = torch.stack if self.linear else torch.cat
+            self.W = [join([w[k] for w in ws]) for k in range(len(ws[0]))]
+            self.B = [join([b[k] for b in bs]) for k in range(len(bs[0]))]
 
     def _wb(self, k: int) -> Tuple[torch.Tensor, torch.Tensor]:
-        w, b = self.weights[k].detach(), self.biases[k].detach()
-        if self.linear:
-            return w.t().unsqueeze(0), b.view(1, 1, -1)
+        w, b = self.W[k], self.B[k]
+        if self.linear:  # the weight's transposed view, as one agent's products read it
+            if self.agents == 1:
+                return w.t().unsqueeze(0), b.view(1, 1, -1)
+            return w.transpose(1, 2), b.unsqueeze(1)
         return w, b
 
     def forward(self, x: torch.Tensor) -> Tuple[torch.Tensor, List[Tuple[torch.Tensor, Optional[torch.Tensor]]]]:
-        """x (B, in), shared by all members, or (E, B, in) -> (output (E, B, out), each layer's input in fp32
-        and, for a bf16 layer, in bf16)."""
+        """x (B, in), shared by all members, (S, B, in), one per agent, shared by its members, or (E, B, in)
+        -> (output (E, B, out), each layer's input in fp32 and, for a bf16 layer, in bf16)."""
+        if x.dim() == 3 and self.per_agent > 1 and x.shape[0] == self.agents:
+            if self.agents == 1:
+                x = x[0]
+            else:
+                x = x.unsqueeze(1).expand(self.agents, self.per_agent, *x.shape[1:]).reshape(self.n, *x.shape[1:])
         if x.dim() == 2:
             x = x.unsqueeze(0).expand(self.n, *x.shape)
         inputs: List[Tuple[torch.Tensor, Optional[torch.Tensor]]] = []
         h = x
-        last = len(self.weights) - 1
+        last = len(self.W) - 1
         for k in range(last + 1):
             w, b = self._wb(k)
             if self.bf16[k]:
@@ -89,7 +115,7 @@ class Layers:
         is given; returns dL/d(input)[..., input_cols] (E, B, len) if ``input_cols`` is given, else None."""
         found: List[Tuple[torch.Tensor, torch.Tensor]] = []
         back = None
-        for k in reversed(range(len(self.weights))):
+        for k in reversed(range(len(self.W))):
             x, xb = inputs[k]
             w, _ = self._wb(k)
             if xb is not None:  # bf16 layer: both products take bf16 inputs
@@ -114,9 +140,12 @@ class Layers:
     def _grads(self, x: torch.Tensor, gx: torch.Tensor, g: torch.Tensor) -> Tuple[torch.Tensor, torch.Tensor]:
         """(weight, bias) gradients of a layer from its input x and the gradient g at its output (gx: g in
         x's dtype)."""
-        if self.linear:  # weight (out, in): g^T x
+        if self.linear and self.agents == 1:  # weight (out, in): g^T x
             gw = torch.mm(gx[0].t(), x[0])
             gbias = g[0].sum(0)
+        elif self.linear:  # (S, out, in)
+            gw = torch.bmm(gx.transpose(1, 2), x)
+            gbias = g.sum(1)
         elif g.shape[-1] == 1:  # (E, in, 1): x^T g member by member
             gw = _mv(x.transpose(1, 2), g[..., 0]).unsqueeze(-1)
             gbias = g.sum(1, keepdim=True)
@@ -140,38 +169,61 @@ def _mv(x: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
 
 
 class FusedUpdate:
-    """``SAC._update`` with hand-written gradients; built once per agent (it holds views of its parameters).
+    """``SAC._update`` with hand-written gradients; built once per agent, or once per pack of agents with equal
+    networks and settings (``sac_pack.py``); it holds views of their parameters.
 
     ``compute`` is pure: tensors in, gradients and outputs out (no ``.grad`` written, no optimizer), so that
-    ``SACConfig.compile`` can hand it to ``torch.compile``; ``__call__`` applies its result."""
+    ``SACConfig.compile`` can hand it to ``torch.compile``; ``__call__`` (one agent) and ``step_pack`` (a pack)
+    apply its result. Every tensor carries the pack's agents first: (S, B, ...)."""
 
-    def __init__(self, sac: nn.Module):  # a sac.SAC (not imported: sac.py imports this module)
-        self.sac = sac
+    def __init__(self, sacs):  # a sac.SAC or a list of them (not imported: sac.py imports this module)
+        self.sacs = list(sacs) if isinstance(sacs, (list, tuple)) else [sacs]
+        sac = self.sac = self.sacs[0]
         self.log_std_range = sac.actor.log_std_range
         low = sac.cfg.matmul_precision == "bf16"
-        self.actor = Layers(sac.actor.net, low)
-        self.q = Layers(sac.q, low)
+        self.actor = Layers([s.actor.net for s in self.sacs], low)
+        self.q = Layers([s.q for s in self.sacs], low)
+        self.nets = [self.q, self.actor]
         if sac.paper:
-            self.v = Layers(sac.v, low)
-            self.v_target = Layers(sac.v_target, low)
+            self.v = Layers([s.v for s in self.sacs], low)
+            self.v_target = Layers([s.v_target for s in self.sacs], low)
+            self.nets += [self.v, self.v_target]
         else:
-            self.q_target = Layers(sac.q_target, low)
-        # the parameters compute() returns gradients for, in its order
-        self.params = self.q.params + self.actor.params + (self.v.params if sac.paper else [])
+            self.q_target = Layers([s.q_target for s in self.sacs], low)
+            self.nets.append(self.q_target)
+        # per agent, the parameters compute() returns gradients for, in its order; and how many of a stacked
+        # gradient's leading rows belong to one agent (0: a scalar per agent, log alpha)
+        self.params_of = [self.q.params_of[i] + self.actor.params_of[i] + (self.v.params_of[i] if sac.paper else [])
+                          for i in range(len(self.sacs))]
+        self.rows = [self.q.per_agent] * len(self.q.params) + [1] * len(self.actor.params) \
+            + ([1] * len(self.v.params) if sac.paper else [])
         if sac.learn_alpha:
-            self.params.append(sac.log_alpha)
+            for i, s in enumerate(self.sacs):
+                self.params_of[i].append(s.log_alpha)
+            self.rows.append(0)
+        self.params = self.params_of[0]
         self.compute = self._compute
         if sac.cfg.compile:
             import torch._inductor.config as inductor_config
             inductor_config.fallback_random = True  # the same random draws as eager (and as autograd's path)
             self.compute = torch.compile(self._compute, dynamic=False)
 
-    def policy(self, obs: torch.Tensor, keep: bool):
-        """The actor's reparameterised sample (as ``Actor.forward``, same random draw) and what its backward needs."""
+    def draw_shapes(self, n_critic: int, n_pi: int, act_dim: int, separate: bool) -> List[Tuple[int, int]]:
+        """The standard-normal draws of one update, in the order one agent's update makes them (a pack draws
+        them per agent from that agent's own stream and passes them to ``compute``). ``separate``: the actor
+        has its own batch."""
+        shapes = [(n_pi, act_dim)]                      # the policy at s (actor loss)
+        if not self.sac.paper or separate:              # a' at s' (critic target), or V's target's fresh action
+            shapes.append((n_critic, act_dim))
+        return shapes
+
+    def policy(self, obs: torch.Tensor, keep: bool, eps: Optional[torch.Tensor] = None):
+        """The actor's reparameterised sample (as ``Actor.forward``, same random draw) and what its backward
+        needs; ``eps``: the draw, made by the caller (a pack), or None to draw it here."""
         out, inputs = self.actor.forward(obs)
-        mu, raw_log_std = out[0].chunk(2, dim=-1)
+        mu, raw_log_std = out.chunk(2, dim=-1)
         log_std = torch.clamp(raw_log_std, *self.log_std_range)
-        eps = torch.randn_like(mu)
+        eps = torch.randn_like(mu) if eps is None else eps
         std = log_std.exp()
         u = mu + std * eps
         a = torch.tanh(u)
@@ -187,84 +239,129 @@ class FusedUpdate:
         g_u = g_a * (1.0 - a * a) + g_logp * (2.0 * a)
         lo, hi = self.log_std_range
         g_log_std = (g_u * std * eps - g_logp) * ((raw_log_std >= lo) & (raw_log_std <= hi))
-        self.actor.backward(inputs, torch.cat([g_u, g_log_std], -1).unsqueeze(0), grads)
+        self.actor.backward(inputs, torch.cat([g_u, g_log_std], -1), grads)
 
-    def _compute(self, obs, act, rew, next_obs, done, w, pi_obs, log_alpha):
-        """-> (gradients of self.params, |TD| summed over critics, the loss terms for the logs). ``pi_obs``: the
-        actor's own batch, or None for the critic batch."""
+    def _min_critic(self, q: torch.Tensor):
+        """(S * 2, B, 1) critic outputs -> min over each agent's two critics: (values (S, B), member (S, B))."""
+        return q.view(-1, self.q.per_agent, q.shape[1]).min(1)
+
+    def _compute(self, obs, act, rew, next_obs, done, w, pi_obs, log_alpha, eps=None):
+        """-> (gradients of self.params stacked over the pack, |TD| summed over critics (S, B), the loss terms
+        (S,) for the logs). ``pi_obs``: the actor's own batch, or None for the critic batch; ``eps``: the
+        update's standard-normal draws (``draw_shapes``), stacked over the pack, or None to draw them here."""
         sac, cfg = self.sac, self.sac.cfg
-        alpha = log_alpha.exp()
-        n_critic, d_obs = obs.shape
+        for net in self.nets:
+            net.refresh()
+        draws = iter(eps) if eps is not None else iter(())
+        alpha = log_alpha.exp().unsqueeze(-1)  # (S, 1)
+        n_critic, d_obs = obs.shape[1:]
         grads: List[torch.Tensor] = []
         separate_actor_batch = pi_obs is not None  # the actor trains on its own batch
         pi_obs = obs if pi_obs is None else pi_obs
 
         # --- policy at s, and the critics there (their weights are constants in the actor loss)
-        n_pi = pi_obs.shape[0]
-        a_pi, logp_pi, saved_pi = self.policy(pi_obs, keep=True)
+        n_pi = pi_obs.shape[1]
+        a_pi, logp_pi, saved_pi = self.policy(pi_obs, keep=True, eps=next(draws, None))
         q_pi_all, q_pi_inputs = self.q.forward(torch.cat([pi_obs, a_pi], -1))
-        q_pi, q_pi_arg = q_pi_all.squeeze(-1).min(0)
+        q_pi, q_pi_arg = self._min_critic(q_pi_all)
         actor_w = w if (w is not None and not separate_actor_batch and not cfg.is_weights_critic_only) else None
 
         # --- critic targets
         if sac.paper:
-            next_v = self.v_target.forward(next_obs)[0][0].squeeze(-1)
+            next_v = self.v_target.forward(next_obs)[0].squeeze(-1)
         else:
-            a_next, logp_next, _ = self.policy(next_obs, keep=False)
-            q_next = self.q_target.forward(torch.cat([next_obs, a_next], -1))[0].min(0).values.squeeze(-1)
+            a_next, logp_next, _ = self.policy(next_obs, keep=False, eps=next(draws, None))
+            q_next = self._min_critic(self.q_target.forward(torch.cat([next_obs, a_next], -1))[0]).values
             next_v = q_next - alpha * logp_next
         y = rew + cfg.gamma * (1.0 - done) * next_v
 
         q_sa, q_sa_inputs = self.q.forward(torch.cat([obs, act], -1))
-        q_sa = q_sa.squeeze(-1)  # (E, B)
-        td = q_sa - y
+        td = q_sa.view(-1, self.q.per_agent, n_critic) - y.unsqueeze(1)  # (S, 2, B)
 
         # --- critic loss mean_b w_b 0.5 sum_e td^2: dL/dQ_e(s, a) = w td / B
-        g_q = td * (w / n_critic) if w is not None else td / n_critic
-        self.q.backward(q_sa_inputs, g_q.unsqueeze(-1), grads)
+        g_q = td * (w / n_critic).unsqueeze(1) if w is not None else td / n_critic
+        self.q.backward(q_sa_inputs, g_q.view(-1, n_critic, 1), grads)
 
         # --- actor loss mean_b w_b (alpha log pi - min_e Q_e(s, a_pi)): through the argmin member into a_pi
         coef = actor_w / n_pi if actor_w is not None else torch.full_like(logp_pi, 1.0 / n_pi)
-        g_q_pi = torch.zeros_like(q_pi_all.squeeze(-1)).scatter_(0, q_pi_arg.unsqueeze(0), -coef.unsqueeze(0))
-        g_a = self.q.backward(q_pi_inputs, g_q_pi.unsqueeze(-1), input_cols=slice(d_obs, None)).sum(0)
+        g_q_pi = torch.zeros(q_pi_arg.shape[0], self.q.per_agent, n_pi).scatter_(
+            1, q_pi_arg.unsqueeze(1), -coef.unsqueeze(1))
+        g_a = self.q.backward(q_pi_inputs, g_q_pi.view(-1, n_pi, 1), input_cols=slice(d_obs, None))
+        g_a = g_a.view(-1, self.q.per_agent, n_pi, g_a.shape[-1]).sum(1)
         self.policy_backward(saved_pi, g_a, alpha * coef, grads)
 
-        sq = 0.5 * td.pow(2).sum(0)
+        sq = 0.5 * td.pow(2).sum(1)
         actor_terms = alpha * logp_pi - q_pi
         terms = {
-            "losses/qf_loss": (w * sq).mean() if w is not None else sq.mean(),
-            "losses/actor_loss": (actor_w * actor_terms).mean() if actor_w is not None else actor_terms.mean(),
-            "losses/alpha": alpha,
-            "losses/entropy": -logp_pi.mean(),
-            "losses/qf_values": q_sa.mean(),
+            "losses/qf_loss": (w * sq).mean(-1) if w is not None else sq.mean(-1),
+            "losses/actor_loss": (actor_w * actor_terms).mean(-1) if actor_w is not None else actor_terms.mean(-1),
+            "losses/alpha": alpha[:, 0],
+            "losses/entropy": -logp_pi.mean(-1),
+            "losses/qf_values": q_sa.view(len(sq), -1).mean(-1),
         }
-        if sac.paper:  # V(s) <- min_e Q_e(s, a~pi) - alpha log pi(a|s) (Eq. 4)
+        if sac.paper:  # V(s) <- min_e Q_e(s, a~pi) - alpha log pi (Eq. 4)
             v_target = q_pi - alpha * logp_pi
             if separate_actor_batch:  # V trains on the critic batch; a fresh action there
-                a2, lp2, _ = self.policy(obs, keep=False)
-                v_target = self.q.forward(torch.cat([obs, a2], -1))[0].min(0).values.squeeze(-1) - alpha * lp2
+                a2, lp2, _ = self.policy(obs, keep=False, eps=next(draws, None))
+                v_target = self._min_critic(self.q.forward(torch.cat([obs, a2], -1))[0]).values - alpha * lp2
             v_pred, v_inputs = self.v.forward(obs)
-            v_err = v_pred[0].squeeze(-1) - v_target
+            v_err = v_pred.squeeze(-1) - v_target
             g_v = v_err * (w / n_critic) if w is not None else v_err / n_critic
-            self.v.backward(v_inputs, g_v.view(1, -1, 1), grads)
+            self.v.backward(v_inputs, g_v.unsqueeze(-1), grads)
             v_sq = 0.5 * v_err.pow(2)
-            terms["losses/v_loss"] = (w * v_sq).mean() if w is not None else v_sq.mean()
+            terms["losses/v_loss"] = (w * v_sq).mean(-1) if w is not None else v_sq.mean(-1)
         if sac.learn_alpha:  # alpha loss -mean(log alpha (log pi + target entropy))
-            grads.append(-(logp_pi + sac.target_entropy).mean())
-            terms["losses/alpha_loss"] = -(log_alpha * (logp_pi + sac.target_entropy)).mean()
-        return grads, td.abs().sum(0), terms
+            g_alpha = -(logp_pi + sac.target_entropy).mean(-1)
+            grads.append(g_alpha[0] if len(g_alpha) == 1 else g_alpha)
+            terms["losses/alpha_loss"] = -(log_alpha.unsqueeze(-1) * (logp_pi + sac.target_entropy)).mean(-1)
+        return grads, td.abs().sum(1), terms
+
+    def _step(self, i: int, grads: List[torch.Tensor]) -> None:
+        """Agent i's share of the gradients into its parameters; its Adam step and Polyak average."""
+        sac = self.sacs[i]
+        for p, g, rows in zip(self.params_of[i], grads, self.rows):
+            if len(self.sacs) > 1:
+                g = g[i] if rows <= 1 else g[i * rows:(i + 1) * rows]
+            p.grad = g
+        sac.optimizer.step()
+        torch._foreach_lerp_(sac._target_params, sac._online_params, sac.cfg.tau)
+        sac._n_updates += 1
 
     @torch.no_grad()
     def __call__(self, batch: "Batch", actor_batch: Optional["Batch"],
                  want_logs: bool) -> Tuple[np.ndarray, Dict[str, float]]:
         sac = self.sac
-        pi_obs = None if actor_batch is None else actor_batch.obs
-        grads, td_abs, terms = self.compute(batch.obs, batch.action, batch.reward, batch.next_obs, batch.done,
-                                            batch.weights, pi_obs, sac.log_alpha.detach())
-        for p, g in zip(self.params, grads):
-            p.grad = g
-        sac.optimizer.step()
-        torch._foreach_lerp_(sac._target_params, sac._online_params, sac.cfg.tau)
-        sac._n_updates += 1
-        logs = {k: float(v) for k, v in terms.items()} if want_logs else {}
-        return td_abs.cpu().numpy(), logs
+        pi_obs = None if actor_batch is None else actor_batch.obs.unsqueeze(0)
+        w = None if batch.weights is None else batch.weights.unsqueeze(0)
+        grads, td_abs, terms = self.compute(batch.obs.unsqueeze(0), batch.action.unsqueeze(0),
+                                            batch.reward.unsqueeze(0), batch.next_obs.unsqueeze(0),
+                                            batch.done.unsqueeze(0), w, pi_obs, sac.log_alpha.detach().view(1))
+        self._step(0, grads)
+        logs = {k: float(v[0]) for k, v in terms.items()} if want_logs else {}
+        return td_abs[0].cpu().numpy(), logs
+
+    @torch.no_grad()
+    def step_pack(self, batches: List["Batch"], actor_batches: List[Optional["Batch"]], draw
+                  ) -> Tuple[List[np.ndarray], List[Dict[str, float]]]:
+        """One update of every agent of the pack, agent i on ``batches[i]``. ``draw(i, shapes)`` returns agent
+        i's standard-normal draws of these shapes from its own random stream (a run's draws do not depend on
+        its pack). -> (|TD| per agent, loss terms per agent)."""
+        sac = self.sac
+        stack = lambda name, bs: torch.stack([getattr(b, name) for b in bs])  # noqa: E731
+        separate = actor_batches[0] is not None
+        pi_obs = stack("obs", actor_batches) if separate else None
+        w = None if batches[0].weights is None else stack("weights", batches)
+        obs = stack("obs", batches)
+        n_pi = obs.shape[1] if pi_obs is None else pi_obs.shape[1]
+        shapes = self.draw_shapes(obs.shape[1], n_pi, sac.act_dim, separate)
+        per_agent = [draw(i, shapes) for i in range(len(self.sacs))]
+        eps = [torch.stack([d[j] for d in per_agent]) for j in range(len(shapes))]
+        log_alpha = torch.stack([s.log_alpha.detach() for s in self.sacs])
+        grads, td_abs, terms = self.compute(obs, stack("action", batches), stack("reward", batches),
+                                            stack("next_obs", batches), stack("done", batches), w, pi_obs,
+                                            log_alpha, eps)
+        for i in range(len(self.sacs)):
+            self._step(i, grads)
+        td = td_abs.cpu().numpy()
+        return [td[i] for i in range(len(self.sacs))], [{k: float(v[i]) for k, v in terms.items()}
+                                                         for i in range(len(self.sacs))]

@@ -125,32 +125,52 @@ class Trainer:
         Evaluations and checkpoints happen between episodes; with N > 1 envs the episodes still in
         flight then are cut (stored as time-limit truncations), so a checkpoint never holds half an episode.
         """
-        cfg, c, eps = self.cfg, self.count, self.train_eps
+        cfg, c = self.cfg, self.count
         if self.folder.done:
             return self.folder.final()
+        self.start()
+        try:
+            while c.env_steps < cfg.total_steps:
+                ended = self.collect_step()                                       # act, step, store
+                for _ in range(self.updates_due(ended)):                          # update when due
+                    self._update()
+                if self.between_episodes(ended, stop_at):                         # evaluate, checkpoint
+                    return None  # paused at stop_at: checkpointed
+        finally:
+            self.close_logs()
+        return self.finish()
+
+    # ------------------------------------------------------------ loop pieces (a pack calls them too: pack.py)
+    def start(self) -> None:
+        """Logs open; a fresh run's demonstrations and step-0 evaluation; every env starts a fresh episode."""
+        c = self.count
         self._open_logs()
         if not self.resumed and c.env_steps == 0:
             self._collect_demos()
-            if cfg.eval_at_start:  # the starting policy's score (a transfer stage: the prior, zero-shot)
+            if self.cfg.eval_at_start:  # the starting policy's score (a transfer stage: the prior, zero-shot)
                 self._eval_row()
-        t0 = time.perf_counter() - c.wall_time
-        eps.restart()  # every env starts a fresh episode (also after a resume)
-        try:
-            while c.env_steps < cfg.total_steps:
-                self._begin_episodes()
-                action = self._explore(self.env.policy_input(eps.flat))         # act
-                ended = eps.step(action)                                        # step
-                self._count_steps(eps.n_envs)
-                for ep in eps.finished(ended):                                  # store
-                    self._store(ep)
-                for _ in range(self._updates_due(eps.n_envs, int(ended.sum()))):  # update when due
-                    self._update()
-                finished = c.env_steps >= cfg.total_steps
-                if (ended.any() or finished) and self._between_episodes(finished, stop_at, t0):
-                    return None  # paused at stop_at: checkpointed
-        finally:
-            self._close_logs()
-        return self._finish()
+        self._t0 = time.perf_counter() - c.wall_time
+        self.train_eps.restart()  # also after a resume
+
+    def collect_step(self) -> np.ndarray:
+        """One step of every env: act, step, count, store the episodes that ended. -> which envs' episodes ended."""
+        eps = self.train_eps
+        self._begin_episodes()
+        action = self._explore(self.env.policy_input(eps.flat))
+        ended = eps.step(action)
+        self._count_steps(eps.n_envs)
+        for ep in eps.finished(ended):
+            self._store(ep)
+        return ended
+
+    def updates_due(self, ended: np.ndarray) -> int:
+        return self._updates_due(self.train_eps.n_envs, int(ended.sum()))
+
+    def between_episodes(self, ended: np.ndarray, stop_at: Optional[int]) -> bool:
+        """After a step: evaluate / checkpoint / pause when an episode ended or the budget is spent; True if
+        the run pauses here (``stop_at``)."""
+        finished = self.count.env_steps >= self.cfg.total_steps
+        return bool((ended.any() or finished) and self._between_episodes(finished, stop_at, self._t0))
 
     # ------------------------------------------------------------ loop pieces
     def _open_logs(self) -> None:
@@ -166,7 +186,7 @@ class Trainer:
         self._next_eval = self._next(cfg.eval_every)
         self._next_ckpt = self._next(cfg.checkpoint_every)
 
-    def _close_logs(self) -> None:
+    def close_logs(self) -> None:
         self.bar.close()
         self.tb.close()
 
@@ -208,7 +228,7 @@ class Trainer:
             self._next_ckpt = self._next(self.cfg.checkpoint_every)
         return stopping
 
-    def _finish(self) -> dict:
+    def finish(self) -> dict:
         final = dict(self.rows[-1])
         self.folder.finish(final, demo_env_steps=self.count.demo_env_steps)
         if not self.keep_replay:  # after done.json: a kill before it still leaves a resumable checkpoint
@@ -240,11 +260,20 @@ class Trainer:
         return due
 
     def _update(self) -> None:
-        s, c = self.cfg.sac, self.count
+        batch, actor_batch, log_now = self.sample()
+        td_abs, logs = self.agent.update(batch, actor_batch, want_logs=log_now)
+        self.apply_update(batch, td_abs, logs, log_now)
+
+    def sample(self):
+        """The next update's batches -> (batch, actor batch or None, whether this update logs)."""
+        s = self.cfg.sac
         batch = self.method.sample(s.batch_size)
         actor_batch = self.method.sample_uniform(s.batch_size) if s.actor_uniform_batch else None
-        log_now = c.updates % s.log_every == 0
-        td_abs, logs = self.agent.update(batch, actor_batch, want_logs=log_now)
+        return batch, actor_batch, self.count.updates % s.log_every == 0
+
+    def apply_update(self, batch, td_abs: np.ndarray, logs: dict, log_now: bool) -> None:
+        """What follows the agent's update: priorities, the count, the logs (a diverged loss stops the run)."""
+        c = self.count
         self.method.update_priorities(batch, td_abs)
         c.updates += 1
         if log_now:

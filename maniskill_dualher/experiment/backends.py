@@ -54,14 +54,16 @@ class ProgressFile:
     the budget's end), atomically; ``listener()`` is called after each write (the inline backend's bar)."""
 
     def __init__(self, every_s: float = PROGRESS_EVERY_S, listener: Optional[Callable[[], None]] = None):
-        self.every_s, self.listener, self.last = every_s, listener, None
+        self.every_s, self.listener = every_s, listener
+        self.last: Dict[str, float] = {}  # per run folder: a pack's runs share one hook
         self.who = {"pid": os.getpid(), "host": socket.gethostname()}
 
     def __call__(self, out, env_steps: int, total_steps: int) -> None:
         now = time.monotonic()
-        if self.last is not None and now - self.last < self.every_s and env_steps < total_steps:
+        last = self.last.get(str(out))
+        if last is not None and now - last < self.every_s and env_steps < total_steps:
             return
-        self.last = now
+        self.last[str(out)] = now
         try:
             atomic_write_text(Path(out) / PROGRESS, json.dumps(
                 {"env_steps": int(env_steps), "total_steps": int(total_steps), **self.who,
@@ -96,24 +98,49 @@ def _worker_init(parent_pid: int) -> None:
 
 
 def execute(payload: dict, listener: Optional[Callable[[], None]] = None) -> dict:
-    """Run one grid node (in a worker) and return its final metrics row."""
+    """Run one grid node (in a worker) and return its final metrics row; a pack payload (``{"pack": [node
+    payloads]}``, ``run_grid(pack=S)``) runs its nodes side by side (``pack.py``) and returns each one's row or
+    error: ``{"pack": [{"rel", "row"} | {"rel", "error"}]}``."""
     import torch
     from ..train import Trainer
     torch.set_num_threads(1)
-    cfg = RunConfig.from_dict(payload["cfg"])
     before = getattr(Trainer, "progress_hook", None)
     Trainer.progress_hook = ProgressFile(listener=listener)
     try:
-        if "stages" in payload:
-            stages = [RunConfig.from_dict(s) for s in payload["stages"]]
-            row = protocol.run_stage(stages, payload["stage"], payload["chain_dir"], payload["carry_replay"],
-                                     show_progress=False)
-        else:
-            from ..train import run_training
-            row = run_training(cfg, payload["out"], show_progress=False)
+        if "pack" in payload:
+            from ..pack import Job, run_pack
+            jobs, out = [], []
+            for p in payload["pack"]:
+                try:
+                    jobs.append(Job(**_job(p)))
+                    out.append({"rel": p["rel"]})
+                except Exception as e:  # a stage whose parent is not there: that node alone fails
+                    out.append({"rel": p["rel"], "error": _error_line(e)})
+            res = iter(run_pack(jobs))
+            for o in out:
+                if "error" not in o:
+                    r = next(res)
+                    o.update({"row": dict(r["row"])} if "error" not in r else {"error": _error_line(r["error"])})
+            return {"pack": out}
+        from ..train import run_training
+        job = _job(payload)
+        row = run_training(job.pop("cfg"), job.pop("out"), show_progress=False, **job)
     finally:
         Trainer.progress_hook = before
     return {"rel": payload["rel"], "row": dict(row)}
+
+
+def _job(payload: dict) -> dict:
+    """A node payload -> run_training's arguments (a chain stage: its folder, parent and replay flags)."""
+    if "stages" in payload:
+        stages = [RunConfig.from_dict(s) for s in payload["stages"]]
+        return protocol.stage_job(stages, payload["stage"], payload["chain_dir"], payload["carry_replay"])
+    return dict(cfg=RunConfig.from_dict(payload["cfg"]), out=payload["out"])
+
+
+def _error_line(e: BaseException) -> str:
+    msg = str(e).strip().splitlines()[-1] if str(e).strip() else ""
+    return f"{type(e).__name__}: {msg}" if msg else type(e).__name__
 
 
 # ----------------------------------------------------------------------------- backends
@@ -304,11 +331,13 @@ def _wait(backend, handles: list, timeout: float) -> list:
 
 
 def run_grid(nodes: List[Node], out: Path, backend, progress: bool = True, retries: int = DEFAULT_RETRIES,
-             poll_s: float = POLL_S) -> List[str]:
+             poll_s: float = POLL_S, pack: int = 1) -> List[str]:
     """Run every unfinished node, parents before children, long chains first; return failures.
 
-    A run whose worker died (``WorkerLost``) is submitted again, from its checkpoint, up to ``retries``
-    times; a run that raised is a failure at once (its traceback: ``<run>/error.txt``)."""
+    With ``pack`` > 1 a worker gets up to that many ready runs with equal ``pack.pack_key`` at once and trains
+    them side by side (``pack.py``; a run's results do not depend on its pack). A run whose worker died
+    (``WorkerLost``) is submitted again, from its checkpoint, up to ``retries`` times (with its pack); a run
+    that raised is a failure at once (its traceback: ``<run>/error.txt``), the others of its pack go on."""
     from tqdm import tqdm
 
     out = Path(out)
@@ -316,7 +345,7 @@ def run_grid(nodes: List[Node], out: Path, backend, progress: bool = True, retri
     done = {n.rel for n in nodes if rundir.is_done(out / n.rel)}
     todo = [n for n in nodes if n.rel not in done]
     failed: List[str] = []
-    in_flight: Dict[object, Node] = {}
+    in_flight: Dict[object, List[Node]] = {}
     lost: Dict[str, int] = {}
     total = sum(n.cfg.total_steps for n in nodes)
     # progress in env steps (finished runs count whole), so the ETA is one of work, not of run count
@@ -327,50 +356,82 @@ def run_grid(nodes: List[Node], out: Path, backend, progress: bool = True, retri
         backend.listener = tracker.poll
     if done:
         bar.write(f"{len(done)} of {len(nodes)} runs already finished: skipped")
+
+    def fail(n: Node, why: str) -> None:
+        tracker.finish(n, ok=False)
+        failed.append(n.rel)
+        bar.write(f"FAILED {n.label} ({n.rel}): {why}{traceback_hint(out / n.rel)}")
+
     try:
         while todo or in_flight:
             ready = [n for n in todo if n.parent is None or n.parent in done]
             ready.sort(key=lambda n: -n.descendants)  # stable: grid order among equals
-            for n in ready[: max(0, backend.capacity - len(in_flight))]:
-                tracker.start(n)
-                in_flight[backend.submit(n.payload(out))] = n
-                todo.remove(n)
+            for group in packs(ready, max(0, backend.capacity - len(in_flight)), pack):
+                for n in group:
+                    tracker.start(n)
+                    todo.remove(n)
+                in_flight[backend.submit(_payload(group, out))] = group
             if not in_flight:
                 break  # the rest waits on failed runs
             finished = _wait(backend, list(in_flight), poll_s)
             tracker.poll()
             for h in finished:
-                n = in_flight.pop(h)
+                group = in_flight.pop(h)
                 try:
                     res = backend.result(h)
                 except WorkerLost as e:
-                    lost[n.rel] = lost.get(n.rel, 0) + 1
-                    if e.retryable and lost[n.rel] <= retries:
-                        bar.write(f"LOST {n.label} ({n.rel}): {e}; retry {lost[n.rel]}/{retries} from its "
-                                  f"last checkpoint{traceback_hint(out / n.rel)}")
-                        in_flight[backend.submit(n.payload(out))] = n
-                        continue
-                    tracker.finish(n, ok=False)
-                    failed.append(n.rel)
-                    tries = f" ({lost[n.rel]} times)" if e.retryable else ""
-                    bar.write(f"FAILED {n.label} ({n.rel}): worker lost{tries}: {e}{traceback_hint(out / n.rel)}")
+                    again = []
+                    for n in group:
+                        lost[n.rel] = lost.get(n.rel, 0) + 1
+                        if e.retryable and lost[n.rel] <= retries:
+                            bar.write(f"LOST {n.label} ({n.rel}): {e}; retry {lost[n.rel]}/{retries} from its "
+                                      f"last checkpoint{traceback_hint(out / n.rel)}")
+                            again.append(n)
+                        else:
+                            fail(n, f"worker lost{f' ({lost[n.rel]} times)' if e.retryable else ''}: {e}")
+                    if again:
+                        in_flight[backend.submit(_payload(again, out))] = again
                     continue
                 except Exception as e:  # one failed run must not stop the others
-                    tracker.finish(n, ok=False)
-                    failed.append(n.rel)
                     msg = str(e).strip().splitlines()[-1] if str(e).strip() else type(e).__name__
-                    bar.write(f"FAILED {n.label} ({n.rel}): {type(e).__name__}: {msg}{traceback_hint(out / n.rel)}")
+                    for n in group:
+                        fail(n, f"{type(e).__name__}: {msg}")
                     continue
-                done.add(n.rel)
-                tracker.finish(n, ok=True)
-                bar.set_postfix(runs=f"{len(done)}/{len(nodes)}")
-                bar.write(f"done {n.label}: {headline(res['row'])}")
+                for n, r in zip(group, res["pack"] if "pack" in res else [res]):
+                    if "error" in r:
+                        fail(n, r["error"])
+                        continue
+                    done.add(n.rel)
+                    tracker.finish(n, ok=True)
+                    bar.set_postfix(runs=f"{len(done)}/{len(nodes)}")
+                    bar.write(f"done {n.label}: {headline(r['row'])}")
         blocked = [n.rel for n in todo]
         if blocked:
             bar.write(f"{len(blocked)} runs not started: they start from a failed run")
     finally:
         bar.close()
     return failed + blocked
+
+
+def packs(ready: List[Node], free: int, size: int) -> List[List[Node]]:
+    """Up to ``free`` groups of ready runs, in ``ready``'s order, each of up to ``size`` runs with equal
+    ``pack_key``, shared evenly over the free workers (16 ready runs, 2 workers, size 8: two packs of 8)."""
+    if size <= 1:
+        return [[n] for n in ready[:free]]
+    from ..pack import pack_key
+    keys = {n.rel: pack_key(n.cfg) for n in ready}
+    left, out = list(ready), []
+    while left and len(out) < free:
+        key = keys[left[0].rel]
+        same = [n for n in left if key is not None and keys[n.rel] == key] or left[:1]
+        group = same[:min(size, max(1, -(-len(same) // (free - len(out)))))]
+        out.append(group)
+        left = [n for n in left if n not in group]
+    return out
+
+
+def _payload(group: List[Node], out: Path) -> dict:
+    return group[0].payload(out) if len(group) == 1 else {"pack": [n.payload(out) for n in group]}
 
 
 # ----------------------------------------------------------------------------- command lines (SLURM)

@@ -45,43 +45,54 @@ def run_updates(cfg) -> Tuple[int, int]:
 _UPDATE_S: Dict[tuple, float] = {}
 
 
-def update_seconds(cfg, obs_dim: int = 43, act_dim: int = 8, iters: int = 30) -> float:
-    """Seconds per SAC update at this config's network and batch size, timed here on one thread."""
+def update_seconds(cfg, obs_dim: int = 43, act_dim: int = 8, iters: int = 30, pack: int = 1) -> float:
+    """Seconds per SAC update at this config's network and batch size, timed here on one thread; with
+    ``pack`` > 1, one agent's share of a batched update of that many agents (``pack.py``)."""
     s = cfg.sac
-    key = (tuple(s.hidden), s.batch_size, s.variant, obs_dim, act_dim)
+    from ..pack import pack_key
+    pack = pack if pack_key(cfg) is not None else 1
+    key = (tuple(s.hidden), s.batch_size, s.variant, obs_dim, act_dim, pack)
     if key in _UPDATE_S:
         return _UPDATE_S[key]
     import torch
 
     from ..replay.base import Batch
     from ..sac import SAC
+    from ..sac_fused import FusedUpdate
 
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
-        agent = SAC(obs_dim, act_dim, s, device="cpu")
+        agents = [SAC(obs_dim, act_dim, s, device="cpu") for _ in range(pack)]
         B = s.batch_size
         g = torch.Generator().manual_seed(0)
         batch = Batch(obs=torch.randn(B, obs_dim, generator=g), action=torch.rand(B, act_dim, generator=g) * 2 - 1,
                       reward=torch.zeros(B), next_obs=torch.randn(B, obs_dim, generator=g), done=torch.zeros(B))
+        if pack == 1:
+            step = lambda: agents[0].update(batch)  # noqa: E731
+        else:
+            fused = FusedUpdate(agents)
+            step = lambda: fused.step_pack([batch] * pack, [None] * pack,  # noqa: E731
+                                           lambda i, shapes: [torch.randn(sh) for sh in shapes])
         for _ in range(5):
-            agent.update(batch)
+            step()
         t0 = time.perf_counter()
         for _ in range(iters):
-            agent.update(batch)
-        _UPDATE_S[key] = (time.perf_counter() - t0) / iters
+            step()
+        _UPDATE_S[key] = (time.perf_counter() - t0) / iters / pack
     finally:
         torch.set_num_threads(threads)
     return _UPDATE_S[key]
 
 
-def grid_cost(cfgs: List) -> Cost:
+def grid_cost(cfgs: List, pack: int = 1) -> Cost:
+    """The cost of these runs, updates timed as a worker packing up to ``pack`` runs makes them."""
     steps = sum(c.total_steps for c in cfgs)
     lo = hi = 0
     sec_lo = sec_hi = 0.0
     for c in cfgs:
         u_lo, u_hi = run_updates(c)
-        per_update = update_seconds(c) + SAMPLE_OVERHEAD_S
+        per_update = update_seconds(c, pack=min(pack, len(cfgs))) + SAMPLE_OVERHEAD_S
         evals = (c.total_steps // c.eval_every + 1) * c.eval_episodes * (c.max_episode_steps or 150)
         env_s = (c.total_steps + evals) * ENV_STEP_S
         lo, hi = lo + u_lo, hi + u_hi

@@ -97,11 +97,9 @@ def stage_lineage(stages: Sequence[RunConfig], i: int, carry_replay: bool) -> di
     }
 
 
-def run_stage(stages: Sequence[RunConfig], i: int, chain_dir: PathLike, carry_replay: bool = True,
-              show_progress: bool = True) -> dict:
-    """Train stage i of a chain in its folder under ``chain_dir`` (stage i-1 must be finished)."""
-    from maniskill_dualher.train import run_training  # heavy import: only where a run happens
-
+def stage_job(stages: Sequence[RunConfig], i: int, chain_dir: PathLike, carry_replay: bool = True) -> dict:
+    """What training stage i of a chain takes (``run_training``'s or a pack's ``Job``'s arguments); writes the
+    stage's ``stage.json``. Stage i-1 must be finished."""
     chain_dir = Path(chain_dir)
     out = chain_dir / stage_dirname(stages, i, carry_replay)
     init_from = None
@@ -111,8 +109,17 @@ def run_stage(stages: Sequence[RunConfig], i: int, chain_dir: PathLike, carry_re
             raise ConfigError(f"stage {i} needs finished stage {i - 1} at {init_from}")
     if rundir.read_stage(out) is None:
         rundir.write_stage(out, stage_lineage(stages, i, carry_replay))
-    return run_training(stages[i], out, init_from=init_from, carry_replay=bool(carry_replay and i > 0),
-                        show_progress=show_progress, keep_replay=bool(carry_replay and i < len(stages) - 1))
+    return dict(cfg=stages[i], out=str(out), init_from=None if init_from is None else str(init_from),
+                carry_replay=bool(carry_replay and i > 0), keep_replay=bool(carry_replay and i < len(stages) - 1))
+
+
+def run_stage(stages: Sequence[RunConfig], i: int, chain_dir: PathLike, carry_replay: bool = True,
+              show_progress: bool = True) -> dict:
+    """Train stage i of a chain in its folder under ``chain_dir`` (stage i-1 must be finished)."""
+    from maniskill_dualher.train import run_training  # heavy import: only where a run happens
+
+    job = stage_job(stages, i, chain_dir, carry_replay)
+    return run_training(job.pop("cfg"), job.pop("out"), show_progress=show_progress, **job)
 
 
 def run_transfer(stages: List[RunConfig], out_dir: PathLike, carry_replay: bool = True,

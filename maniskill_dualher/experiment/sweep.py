@@ -205,6 +205,10 @@ def make_parser() -> argparse.ArgumentParser:
                                  "results/ and a default run never writes there)")
     p.add_argument("--workers", type=int, help="runs in parallel (default: min(2, CPU count); with --ray-address: "
                                                "the cluster's CPUs)")
+    p.add_argument("--pack", type=int, default=1, metavar="S",
+                   help="train up to S runs side by side in each worker, their gradient updates batched into one "
+                        "(runs with equal network and SAC settings; a run's results do not depend on its pack: "
+                        "maniskill_dualher/pack.py). Default: %(default)s")
     p.add_argument("--backend", choices=("local", "ray", "inline"), default="local",
                    help="local process pool, Ray, or inline (one run at a time in this process: debugging, "
                         "methods registered at run time); same results either way")
@@ -260,6 +264,8 @@ def _main(argv: Optional[Sequence[str]], held) -> int:
                 import ray  # noqa: F401
             except ImportError:
                 raise ConfigError("--backend ray needs Ray: pip install 'ray[default]'") from None
+        if a.pack < 1:
+            raise ConfigError(f"--pack must be >= 1, got {a.pack}")
         if a.retries < 0:
             raise ConfigError(f"--retries must be >= 0, got {a.retries}")
         if a.emit_commands and a.dry_run:
@@ -280,7 +286,7 @@ def _main(argv: Optional[Sequence[str]], held) -> int:
             print(f"{state}  {n.rel}  [{', '.join(cells)}]")
         if todo_cfgs:
             from .cost import describe, grid_cost
-            for line in describe(grid_cost(todo_cfgs), workers or 1):
+            for line in describe(grid_cost(todo_cfgs, a.pack), workers or 1):
                 print(line)
         total = sum(c.total_steps for c in todo_cfgs)
         print(f"{len(nodes)} runs; {total} env steps to go; nothing written (--dry-run)")
@@ -296,16 +302,17 @@ def _main(argv: Optional[Sequence[str]], held) -> int:
         for i, lv in enumerate(levels):
             print(f"  level {i}: lines {lv[0]}-{lv[-1]} ({len(lv)} runs)")
         return 0
-    print(f"sweep {a.preset}: {len(nodes)} runs in {out} on {a.backend} backend", flush=True)
+    print(f"sweep {a.preset}: {len(nodes)} runs in {out} on {a.backend} backend"
+          + (f", up to {a.pack} runs per worker" if a.pack > 1 else ""), flush=True)
     if todo_cfgs:
         from .cost import describe, grid_cost
-        for line in describe(grid_cost(todo_cfgs), workers or 1):
+        for line in describe(grid_cost(todo_cfgs, a.pack), workers or 1):
             print(line, flush=True)
     backend = {"local": lambda: LocalBackend(workers), "inline": InlineBackend,
                "ray": lambda: RayBackend(workers, a.ray_address, retries=a.retries)}[a.backend]()
     cancel = True
     try:
-        failed = run_grid(nodes, out, backend, retries=a.retries)
+        failed = run_grid(nodes, out, backend, retries=a.retries, pack=a.pack)
         cancel = False
     except KeyboardInterrupt:
         print("interrupted: rerun the same command to resume", file=sys.stderr)
