@@ -179,6 +179,8 @@ def test_the_scheduler_packs_compatible_ready_runs_evenly():
     ready = [node(i) for i in range(16)]
     assert [len(g) for g in packs(ready, 2, 8)] == [8, 8]
     assert [len(g) for g in packs(ready, 2, 16)] == [8, 8]       # shared evenly over the free workers
+    more = [node(i) for i in range(24)]
+    assert [len(g) for g in packs(more, 2, 8)] == [6, 6]         # 4 packs of 6 in two rounds, not 8, 8, then 8
     assert [len(g) for g in packs(ready[:5], 2, 8)] == [3, 2]
     assert [len(g) for g in packs(ready, 3, 1)] == [1, 1, 1]     # no packing: one run per worker
     mixed = [node(0), node(1, (32, 32)), node(2), node(3, (32, 32))]

@@ -415,8 +415,9 @@ def run_grid(nodes: List[Node], out: Path, backend, progress: bool = True, retri
 
 def packs(ready: List[Node], free: int, size: int) -> List[List[Node]]:
     """Up to ``free`` groups of ready runs, in ``ready``'s order, each of up to ``size`` runs with equal
-    ``pack_key``, shared evenly over the free workers (16 ready runs, 2 workers, size 8: two packs of 8; two
-    keys of 2 runs each: one pack per key)."""
+    ``pack_key``, shared evenly over the free workers: 16 ready runs, 2 workers, size 8: two packs of 8; 24 runs:
+    four packs of 6 (two rounds of two, not a third pack of 8 with one worker idle); two keys of 2 runs each:
+    one pack per key."""
     if size <= 1:
         return [[n] for n in ready[:free]]
     from ..pack import pack_key
@@ -426,7 +427,8 @@ def packs(ready: List[Node], free: int, size: int) -> List[List[Node]]:
         key = keys[left[0].rel]
         same = [n for n in left if key is not None and keys[n.rel] == key] or left[:1]
         slots = max(1, round((free - len(out)) * len(same) / len(left)))  # this key's share of the workers
-        group = same[:min(size, -(-len(same) // slots))]
+        n_packs = -(-max(-(-len(same) // size), slots) // slots) * slots  # a multiple of them: no idle round
+        group = same[:-(-len(same) // n_packs)]
         out.append(group)
         left = [n for n in left if n not in group]
     return out
