@@ -65,6 +65,12 @@ class _Member:
     rng: torch.Tensor          # its torch random state while another run holds the generator
     ended: np.ndarray = None   # which envs' episodes ended this step
     due: int = 0               # updates due this step
+    form: Optional[tuple] = None  # (pack_key, parameter shapes): members that may share an update; None: alone
+
+    def __post_init__(self):  # once per run, not per update
+        key = pack_key(self.trainer.cfg)
+        if key is not None:
+            self.form = (key, tuple(p.shape for p in self.trainer.agent.parameters()))
 
 
 @contextlib.contextmanager
@@ -165,10 +171,8 @@ def _update_round(due: List[_Member], results: List[Optional[dict]], live: List[
         if not _guard(m, results, live, lambda: got.append(m.trainer.sample())):
             continue
         batch, actor_batch, _ = got[0]
-        key = pack_key(m.trainer.cfg)
-        form = (key, batch.weights is None, actor_batch is None,
-                tuple(p.shape for p in m.trainer.agent.parameters()))
-        groups.setdefault(form if key is not None else (id(m),), []).append((m, got[0]))
+        form = (m.form, batch.weights is None, actor_batch is None) if m.form is not None else (id(m),)
+        groups.setdefault(form, []).append((m, got[0]))
     for members in groups.values():
         if len(members) == 1:
             m, (batch, actor_batch, log_now) = members[0]

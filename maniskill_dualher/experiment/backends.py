@@ -139,8 +139,9 @@ def _job(payload: dict) -> dict:
 
 
 def _error_line(e: BaseException) -> str:
-    msg = str(e).strip().splitlines()[-1] if str(e).strip() else ""
-    return f"{type(e).__name__}: {msg}" if msg else type(e).__name__
+    """How run_grid reports a failed run: its exception type and the last line of its message."""
+    msg = str(e).strip().splitlines()[-1] if str(e).strip() else type(e).__name__
+    return f"{type(e).__name__}: {msg}"
 
 
 # ----------------------------------------------------------------------------- backends
@@ -393,9 +394,8 @@ def run_grid(nodes: List[Node], out: Path, backend, progress: bool = True, retri
                         in_flight[backend.submit(_payload(again, out))] = again
                     continue
                 except Exception as e:  # one failed run must not stop the others
-                    msg = str(e).strip().splitlines()[-1] if str(e).strip() else type(e).__name__
                     for n in group:
-                        fail(n, f"{type(e).__name__}: {msg}")
+                        fail(n, _error_line(e))
                     continue
                 for n, r in zip(group, res["pack"] if "pack" in res else [res]):
                     if "error" in r:
