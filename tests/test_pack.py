@@ -182,6 +182,9 @@ def test_the_scheduler_packs_compatible_ready_runs_evenly():
     more = [node(i) for i in range(24)]
     assert [len(g) for g in packs(more, 2, 8)] == [6, 6]         # 4 packs of 6 in two rounds, not 8, 8, then 8
     assert [len(g) for g in packs(ready[:5], 2, 8)] == [3, 2]
+    from maniskill_dualher.experiment.sweep import DEFAULT_PACK
+    # the README's first command (9 runs, 2 workers) at the default: packs of 5 and 4, as measured in docs/speed.md
+    assert [len(g) for g in packs(ready[:9], 2, DEFAULT_PACK)] == [5, 4]
     assert [len(g) for g in packs(ready, 3, 1)] == [1, 1, 1]     # no packing: one run per worker
     mixed = [node(0), node(1, (32, 32)), node(2), node(3, (32, 32))]
     groups = packs(mixed, 2, 4)
