@@ -1,10 +1,10 @@
 """The README's claims table is the reference's claims.csv, word for word: means, n, interval, verdict, machine.
 
 Hand-edited numbers drift when the reference is re-merged; this catches it."""
-import csv
 from pathlib import Path
 
 from maniskill_dualher.analysis.report import _g
+from maniskill_dualher.analysis.runs import read_rows
 
 REPO = Path(__file__).resolve().parents[1]
 # README's machine column: A and B as its legend names them (results/reference/HOW_MADE.md)
@@ -12,8 +12,7 @@ MACHINE_LETTER = {"Intel(R) Xeon(R) Processor": "A", "AMD EPYC": "B"}
 
 
 def _claims():
-    with open(REPO / "results" / "reference" / "claims.csv", newline="") as f:
-        return {r["claim"]: r for r in csv.DictReader(f)}
+    return {r["claim"]: r for r in read_rows(REPO / "results" / "reference" / "claims.csv")}
 
 
 def _readme_rows(claims):
