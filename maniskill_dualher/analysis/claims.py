@@ -131,6 +131,12 @@ CLAIMS: List[Claim] = [
           Side("her_episode", "her_episode", HER), relative_margin=True, group="ablation"),
     Claim("long_a", "with a 4x adaptation budget, dual_buffer > sac_her_per: successful episodes", "", N,
           Side("regime", "long", DUAL), Side("regime", "long", HER), relative_margin=True, group="ablation"),
+    Claim("long_episode_a", "with a 4x adaptation budget and one update per episode (Algorithm 1), dual_buffer > "
+                            "sac_her_per: successful episodes", "", N, Side("regime", "long_episode", DUAL),
+          Side("regime", "long_episode", HER), relative_margin=True, group="ablation"),
+    Claim("warm_low_lr_a", "with a warm start at lr 3e-4, dual_buffer > sac_her_per: successful episodes", "", N,
+          Side("warm_start", "warm_low_lr", DUAL), Side("warm_start", "warm_low_lr", HER), relative_margin=True,
+          group="ablation"),
 ]
 
 CLAIM_COLUMNS = ["claim", "group", "statement", "paper", "metric", "side_a", "side_b", "n_a", "n_b", "mean_a",

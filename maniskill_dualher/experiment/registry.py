@@ -110,8 +110,11 @@ EXPERIMENTS: Dict[str, Experiment] = {e.name: e for e in (
         Arm(PAPER_ARM, doc="HER 'future'"),
         Arm("her_episode", ("replay.her_strategy=episode",), doc="HER 'episode' in every stage (changes the prior)"),
     ), max_seeds=8),
-    Experiment("regime", "A longer adaptation (4x)", "chain", methods="transfer", arms=(
+    Experiment("regime", "A longer adaptation (4x), with updates per env step or per episode", "chain",
+               methods="transfer", arms=(
         Arm("long", doc="4x the adaptation budget", adapt_steps_factor=4.0),
+        Arm("long_episode", ("adapt.sac.update_schedule=episode",), adapt_steps_factor=4.0,
+            doc="4x the adaptation budget and Algorithm 1's schedule: one update per finished episode"),
     ), max_seeds=6),
 )}
 
