@@ -110,7 +110,8 @@ CLAIMS: List[Claim] = [
                                      "source tasks) changes the count by"),
     Claim("e_episodes", "E of whole successful episodes (section 4.2) > E of reward-1 transitions (Alg. 1): "
                         "successful episodes", "", N, Side("e_content", "e_episodes", DUAL), _t(DUAL),
-          relative_margin=True, group="ablation"),
+          relative_margin=True, group="ablation", explains="what E holds: E of whole successful episodes instead "
+                                                            "of reward-1 transitions changes the count by"),
     Claim("warm_dual", "warm start (no random steps) > the paper's adaptation, dual_buffer: mean evaluation "
                        "success", "", S, Side("warm_start", "warm", DUAL), _t(DUAL), group="ablation",
           explains="fine-tuning collapse, dual buffer: a warm start changes mean evaluation success by"),
@@ -128,15 +129,20 @@ CLAIMS: List[Claim] = [
           Side("warm_start", "warm", HER), Side("scratch", "paper", HER), relative_margin=True, group="ablation"),
     Claim("her_episode_a", "with Algorithm 1's HER ('episode') in every stage, dual_buffer > sac_her_per: "
                            "successful episodes", "", N, Side("her_episode", "her_episode", DUAL),
-          Side("her_episode", "her_episode", HER), relative_margin=True, group="ablation"),
+          Side("her_episode", "her_episode", HER), relative_margin=True, group="ablation",
+          explains="claim (a) with Algorithm 1's HER in every stage: dual buffer minus SAC+HER+PER is"),
     Claim("long_a", "with a 4x adaptation budget, dual_buffer > sac_her_per: successful episodes", "", N,
-          Side("regime", "long", DUAL), Side("regime", "long", HER), relative_margin=True, group="ablation"),
+          Side("regime", "long", DUAL), Side("regime", "long", HER), relative_margin=True, group="ablation",
+          explains="claim (a) with 4x the adaptation budget: dual buffer minus SAC+HER+PER is"),
     Claim("long_episode_a", "with a 4x adaptation budget and one update per episode (Algorithm 1), dual_buffer > "
                             "sac_her_per: successful episodes", "", N, Side("regime", "long_episode", DUAL),
-          Side("regime", "long_episode", HER), relative_margin=True, group="ablation"),
+          Side("regime", "long_episode", HER), relative_margin=True, group="ablation",
+          explains="claim (a) in Algorithm 1's regime (4x budget, one update per episode: scarce updates): dual "
+                   "buffer minus SAC+HER+PER is"),
     Claim("warm_low_lr_a", "with a warm start at lr 3e-4, dual_buffer > sac_her_per: successful episodes", "", N,
           Side("warm_start", "warm_low_lr", DUAL), Side("warm_start", "warm_low_lr", HER), relative_margin=True,
-          group="ablation"),
+          group="ablation", explains="claim (a) with a warm start at a lower learning rate: dual buffer minus "
+                                     "SAC+HER+PER is"),
 ]
 
 CLAIM_COLUMNS = ["claim", "group", "statement", "paper", "metric", "side_a", "side_b", "n_a", "n_b", "mean_a",
