@@ -327,3 +327,24 @@ def test_merge_adds_another_sweeps_cells_with_their_machine(folder, tmp_path, ca
     # into a folder with run folders -> refused
     assert report.main([str(folder), "--merge", str(other)]) == 2
     assert {p: p.read_bytes() for p in ref.rglob("*") if p.is_file()} == before
+
+
+def test_sides_are_paired_only_when_every_seed_adapted_the_same_prior_runs():
+    def rows(arm, seed, src, value):
+        base = {"experiment": "ratios", "arm": arm, "method": "dual_buffer", "task": "CloseMicrowave-v1",
+                "seed": str(seed), "machine": "m"}
+        return [{**base, "stage": "0", "role": "source", "metric": "successful_train_episodes", "value": "1",
+                 "run": src},
+                {**base, "stage": "2", "role": "adapt", "metric": "successful_train_episodes", "value": str(value),
+                 "run": f"{src}/{arm}"}]
+    c = next(c for c in claims_mod.CLAIMS if c.key == "c")    # ratios 0.6/0.4 vs 0.5/0.5
+    same = [r for s in range(4) for arm in ("0.6/0.4", "0.5/0.5") for r in rows(arm, s, f"sw/s{s}", 10 + s)]
+    assert claims_mod.paired(same, c)
+    row = next(r for r in claims_mod.claim_rows(same, 200, [c]))
+    assert row["paired"] == "yes" and row["paper_ratio"] == pytest.approx(250 / 154)
+    # one seed's prior trained twice (another sweep): not the same prior, so not paired
+    other = [r for r in same if not (r["seed"] == "3" and r["arm"] == "0.5/0.5")] + rows("0.5/0.5", 3, "sw2/s3", 13)
+    assert not claims_mod.paired(other, c)
+    # seed sets that differ, or sides without source stages (single-task, scratch), are not paired either
+    assert not claims_mod.paired([r for r in same if not (r["seed"] == "0" and r["arm"] == "0.6/0.4")], c)
+    assert not claims_mod.paired([r for r in same if r["role"] == "adapt"], c)

@@ -174,3 +174,35 @@ def test_aggregates_across_tasks_rliable_style():
     _, lo2, hi2 = st.aggregate_ci(flat, lambda b: b.reshape(len(b), -1, 2)[:, :, 0].mean(axis=1))
     assert lo2 == hi2 == 0.5
     assert list(st.performance_profile(m, np.array([0.0, 0.45, 0.95]))) == [1.0, 0.5, 0.0]
+
+
+def test_paired_interval_is_the_one_sample_interval_of_the_per_seed_differences():
+    from scipy.stats import ttest_1samp
+    rng = np.random.default_rng(3)
+    prior = rng.lognormal(3, 1, 16)            # each seed's prior: a large spread both sides share
+    a, b = prior + rng.normal(2, 1, 16), prior + rng.normal(0, 1, 16)
+    unpaired, pair = stats.compare(a, b, 0.1), stats.compare(a, b, 0.1, paired=True)
+    assert unpaired.verdict == stats.INCONCLUSIVE and pair.verdict == stats.REPRODUCED
+    assert pair.ci_high - pair.ci_low < (unpaired.ci_high - unpaired.ci_low) / 5
+    ci = ttest_1samp(a - b, 0).confidence_interval(0.95)   # the floor: the paired t interval
+    assert (pair.welch_low, pair.welch_high) == pytest.approx((ci.low, ci.high))
+    assert pair.ci_low <= ci.low and ci.high <= pair.ci_high and pair.ci_method.startswith("paired")
+    assert pair.seeds_to_decide is None and (pair.mean_a, pair.mean_b) == (unpaired.mean_a, unpaired.mean_b)
+    with pytest.raises(ValueError, match="paired sides need one value per seed"):
+        stats.compare(a, b[:-1], 0.1, paired=True)
+
+
+def test_the_papers_effect_size_is_ruled_out_only_when_the_contrast_interval_says_so():
+    rng = np.random.default_rng(4)
+    a, b = rng.normal(100, 20, 32), rng.normal(100, 20, 32)     # no difference, sign undecided at this n
+    small = stats.compare(a, b, margin=1, paper_ratio=1.6)
+    assert small.ci_low < 0 < small.ci_high and small.verdict == stats.SMALLER
+    assert small.vs_paper_high < 0
+    assert small.verdict_text() == "smaller than the paper's: A >= 1.6 B ruled out; direction undecided"
+    # the contrast is the same interval on A - rho B: rho = 1 gives back the difference's interval
+    assert stats.compare(a, b, 1, paper_ratio=1.0).vs_paper_high == pytest.approx(small.ci_high)
+    # an effect as large as the paper's is not ruled out; without a paper ratio nothing changes
+    assert stats.compare(a, b, 1, paper_ratio=1.05).verdict == stats.INCONCLUSIVE
+    assert stats.compare(a, b, 1).verdict == stats.INCONCLUSIVE
+    # a decided direction keeps its verdict whatever the paper's size
+    assert stats.compare(a + 30, b, 1, paper_ratio=5.0).verdict == stats.REPRODUCED

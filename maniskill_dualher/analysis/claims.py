@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Dict, List, Optional, Sequence
+from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -44,6 +44,7 @@ class Claim:
     relative_margin: bool = False  # margin = 10% of the larger mean (counts) instead of an absolute 0.1
     group: str = "paper"           # "paper" or "ablation"
     explains: str = ""             # ablations: what this claim tells about the dual buffer's gap (summary.md)
+    paper_ratio: Optional[float] = None  # the A/B the paper reports (a lower bound for "< x"): stats' size test
 
 
 def _t(method: str, arm: str = "paper", experiment: str = "transfer") -> Side:
@@ -58,13 +59,15 @@ S = "mean_eval_success_rate"
 CLAIMS: List[Claim] = [
     # ------------------------------------------------------------------ the paper's claims
     Claim("a", f"dual_buffer > sac_her_per: successful {PAPER_TARGET} adaptation episodes", "Table 5: 250 vs <45",
-          N, _t(DUAL), _t(HER), relative_margin=True),
+          N, _t(DUAL), _t(HER), relative_margin=True, paper_ratio=250 / 45),
     Claim("b", f"dual_buffer > sac_her_per: {PAPER_TARGET} adaptation evaluation return (mean over the curve)",
           "Fig. 5: dual buffer's curve above", R, _t(DUAL), _t(HER)),
     Claim("c", f"ratio 0.6/0.4 > 0.5/0.5: successful {PAPER_TARGET} adaptation episodes", "Table 4: 250 vs 154",
-          N, Side("ratios", "0.6/0.4", DUAL), Side("ratios", "0.5/0.5", DUAL), relative_margin=True),
+          N, Side("ratios", "0.6/0.4", DUAL), Side("ratios", "0.5/0.5", DUAL), relative_margin=True,
+          paper_ratio=250 / 154),
     Claim("d", f"ratio 0.5/0.5 > 0.7/0.3: successful {PAPER_TARGET} adaptation episodes", "Table 4: 154 vs <75",
-          N, Side("ratios", "0.5/0.5", DUAL), Side("ratios", "0.7/0.3", DUAL), relative_margin=True),
+          N, Side("ratios", "0.5/0.5", DUAL), Side("ratios", "0.7/0.3", DUAL), relative_margin=True,
+          paper_ratio=154 / 75),
     *[Claim(key, f"dual_buffer > sac: {task} single-task evaluation return (mean over the curve)",
             "Fig. 4: dual buffer's curve above SAC's", R, Side("single", "paper", DUAL, task, "single"),
             Side("single", "paper", "sac", task, "single"))
@@ -147,7 +150,8 @@ CLAIMS: List[Claim] = [
 
 CLAIM_COLUMNS = ["claim", "group", "statement", "paper", "metric", "side_a", "side_b", "n_a", "n_b", "mean_a",
                  "mean_b", "diff", "diff_ci95_low", "diff_ci95_high", "welch_ci95_low", "welch_ci95_high",
-                 "prob_improvement", "margin", "verdict", "seeds_to_decide", "machines"]
+                 "prob_improvement", "margin", "verdict", "seeds_to_decide", "paired", "paper_ratio",
+                 "a_minus_paper_ratio_b_ci95_high", "machines"]
 
 
 def _side_rows(scores: Sequence[Dict[str, str]], side: Side, metric: str) -> Dict[int, Dict[str, str]]:
@@ -171,6 +175,25 @@ def side_machines(scores: Sequence[Dict[str, str]], c: Claim) -> str:
     return "; ".join(sorted({r.get("machine") or "unknown" for r in rows})) if rows else ""
 
 
+def _source_runs(scores: Sequence[Dict[str, str]], side: Side) -> Dict[int, Tuple[str, ...]]:
+    """Per seed, the run folders of the side's source stages (its prior); empty for single-task or scratch."""
+    runs: Dict[int, set] = {}
+    for r in scores:
+        if (r["role"] == "source" and r["experiment"] == side.experiment and r["arm"] == side.arm
+                and r["method"] == side.method):
+            runs.setdefault(int(r["seed"]), set()).add(r["run"])
+    return {s: tuple(sorted(v)) for s, v in runs.items()}
+
+
+def paired(scores: Sequence[Dict[str, str]], c: Claim) -> bool:
+    """Both sides adapted the very same prior for every seed: the same seeds, each with the same source-stage
+    run folders (one sweep trained it once for both). Decided from the data, never from the outcome."""
+    seeds_a, seeds_b = set(_side_rows(scores, c.a, c.metric)), set(_side_rows(scores, c.b, c.metric))
+    src_a, src_b = _source_runs(scores, c.a), _source_runs(scores, c.b)
+    return (bool(seeds_a) and seeds_a == seeds_b
+            and all(src_a.get(s) and src_a.get(s) == src_b.get(s) for s in seeds_a))
+
+
 def claim_rows(scores: Sequence[Dict[str, str]], resamples: int = 10_000,
                claims: Optional[Sequence[Claim]] = None) -> List[dict]:
     rows = []
@@ -182,7 +205,8 @@ def claim_rows(scores: Sequence[Dict[str, str]], resamples: int = 10_000,
             rows.append({**row, "verdict": "not measured (runs missing)"})
             continue
         margin = COUNT_MARGIN * max(abs(np.mean(a)), abs(np.mean(b)), 1.0) if c.relative_margin else RATE_MARGIN
-        cmp = stats.compare(a, b, margin, resamples)
+        pair = paired(scores, c)
+        cmp = stats.compare(a, b, margin, resamples, paired=pair, paper_ratio=c.paper_ratio)
         rows.append({**row, "n_a": cmp.n_a, "n_b": cmp.n_b, "mean_a": cmp.mean_a, "mean_b": cmp.mean_b,
                      "diff": cmp.diff, "diff_ci95_low": cmp.ci_low, "diff_ci95_high": cmp.ci_high,
                      "welch_ci95_low": getattr(cmp, "welch_low", math.nan),
@@ -191,7 +215,10 @@ def claim_rows(scores: Sequence[Dict[str, str]], resamples: int = 10_000,
                      # our own questions are not reproductions: their "A > B" is "supported"
                      "verdict": cmp.verdict_text().replace(stats.REPRODUCED, "supported")
                      if c.group != "paper" else cmp.verdict_text(),
-                     "seeds_to_decide": cmp.seeds_to_decide, "machines": side_machines(scores, c)})
+                     "seeds_to_decide": cmp.seeds_to_decide, "paired": "yes" if pair else "no",
+                     "paper_ratio": c.paper_ratio if c.paper_ratio is not None else "",
+                     "a_minus_paper_ratio_b_ci95_high": cmp.vs_paper_high if c.paper_ratio is not None else "",
+                     "machines": side_machines(scores, c)})
     return rows
 
 

@@ -86,7 +86,8 @@ def claims_md(rows: List[dict]) -> List[str]:
             continue
         lines.append(f"| {r['claim']} | {r['statement']} | {r['paper']} | {_g(r['mean_a'])} vs {_g(r['mean_b'])} "
                      f"(n = {r['n_a']}, {r['n_b']}) | {_g(r['diff'])} [{_g(r['diff_ci95_low'])}, "
-                     f"{_g(r['diff_ci95_high'])}] | {r['prob_improvement']:.2f} | **{r['verdict']}** |")
+                     f"{_g(r['diff_ci95_high'])}]{' paired' if r.get('paired') == 'yes' else ''} | "
+                     f"{r['prob_improvement']:.2f} | **{r['verdict']}** |")
     return lines
 
 
@@ -135,8 +136,11 @@ def summary_md(folder: Path, scores, tables, claims, figures: List[str], unfinis
           "probability of improvement (Mann-Whitney, as in rliable). **reproduced / supported**: the interval excludes 0 in A's favour; **contradicted**: "
           "it excludes 0 the other way; **no difference larger than X**: it lies within +-X (X = "
           f"{claims_mod.RATE_MARGIN} for rates and returns, {claims_mod.COUNT_MARGIN:.0%} of the larger mean for counts "
-          "and env steps); **inconclusive** otherwise, with the seeds per side that would decide it at 80% power "
-          "at the observed spread and difference.", "",
+          "and env steps); **smaller than the paper's** (paper claims with the paper's A/B, rho): the direction is "
+          "undecided but the same interval on mean(A) - rho mean(B) lies below 0, so the paper's effect is ruled "
+          "out (`a_minus_paper_ratio_b_ci95_high`); **inconclusive** otherwise, with the seeds per side that would "
+          "decide it at 80% power at the observed spread and difference. **paired**: both sides adapted the same "
+          "prior for every seed (the same source-stage runs), so the interval is on the per-seed differences.", "",
           f"{len(decided)} of {len(claims)} claims decided. "
           + (stats.multiplicity_note(len(tested)) if hasattr(stats, "multiplicity_note") and tested else ""), ""]
     for group, title in (("paper", "The paper's claims"), ("ablation", "Why: ablations of the adaptation stage")):
