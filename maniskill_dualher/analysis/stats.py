@@ -107,7 +107,8 @@ the same interval on the contrast mean(A) - rho mean(B) (B's scores scaled by rh
 below 0 rules out A >= rho B at 95%, i.e. the paper's effect is larger than anything our data allows
 ("small telescopes", Simonsohn 2015; LeBel et al. 2018's "inconsistent with the original effect size").
 That verdict, **smaller than the paper's**, replaces *inconclusive* only: it says the effect the paper
-reports is ruled out and that the sign is undecided.
+reports is ruled out and that the sign is undecided. A ratio is our closest scale-free reading of the paper's
+numbers; it is not budget-free (the paper's counts come from a far larger budget).
 
 Each claim's CI is at 95%; with many claims some exclude 0 by chance: ``multiplicity_note`` says how many
 to expect, ``bonferroni_level`` gives the per-claim level a Bonferroni correction would use.
