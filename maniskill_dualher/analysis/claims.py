@@ -154,11 +154,14 @@ CLAIM_COLUMNS = ["claim", "group", "statement", "paper", "metric", "side_a", "si
                  "a_minus_paper_ratio_b_ci95_high", "machines"]
 
 
+def _in_arm(r: Dict[str, str], side: Side) -> bool:
+    return r["experiment"] == side.experiment and r["arm"] == side.arm and r["method"] == side.method
+
+
 def _side_rows(scores: Sequence[Dict[str, str]], side: Side, metric: str) -> Dict[int, Dict[str, str]]:
     by_seed: Dict[int, Dict[str, str]] = {}
     for r in scores:
-        if (r["metric"] == metric and r["experiment"] == side.experiment and r["arm"] == side.arm
-                and r["method"] == side.method and r["task"] == side.task and r["role"] == side.role):
+        if r["metric"] == metric and _in_arm(r, side) and r["task"] == side.task and r["role"] == side.role:
             by_seed.setdefault(int(r["seed"]), r)
     return by_seed
 
@@ -179,8 +182,7 @@ def _source_runs(scores: Sequence[Dict[str, str]], side: Side) -> Dict[int, Tupl
     """Per seed, the run folders of the side's source stages (its prior); empty for single-task or scratch."""
     runs: Dict[int, set] = {}
     for r in scores:
-        if (r["role"] == "source" and r["experiment"] == side.experiment and r["arm"] == side.arm
-                and r["method"] == side.method):
+        if r["role"] == "source" and _in_arm(r, side):
             runs.setdefault(int(r["seed"]), set()).add(r["run"])
     return {s: tuple(sorted(v)) for s, v in runs.items()}
 

@@ -352,14 +352,16 @@ def compare(a: Sequence[float], b: Sequence[float], margin: float, resamples: in
     if min(len(a), len(b)) < MIN_SEEDS:
         return Comparison(len(a), len(b), mean_a, mean_b, diff, math.nan, math.nan, p_imp, margin,
                           INCONCLUSIVE, None, ci_method="none (too few seeds)", paired=paired, paper_ratio=rho)
-    # paired: one sample of per-seed differences, i.e. the two-sample code with B = 0 (module doc)
-    x, y = (a - b, np.zeros_like(a)) if paired else (a, b)
+
+    def samples(k: float):
+        """The two samples whose difference of means is mean(A) - k mean(B); paired: the one sample of
+        per-seed differences beside zeros, i.e. the two-sample code with B = 0 (module doc)."""
+        return (a - k * b, np.zeros_like(a)) if paired else (a, k * b)
+
+    x, y = samples(1.0)
     lo, hi, how = _diff_ci(x, y, resamples, seed, level, BOOT_T)
     wl, wh, _, _ = _welch(x, y, level)
-    vs_paper = math.nan
-    if not math.isnan(rho):
-        xr, yr = (a - rho * b, np.zeros_like(a)) if paired else (a, rho * b)
-        vs_paper = _diff_ci(xr, yr, resamples, seed, level, BOOT_T)[1]
+    vs_paper = math.nan if math.isnan(rho) else _diff_ci(*samples(rho), resamples, seed, level, BOOT_T)[1]
     if lo > 0:
         verdict = REPRODUCED
     elif hi < 0:
