@@ -84,6 +84,28 @@ EXPERIMENTS: Dict[str, Experiment] = {e.name: e for e in (
         Arm("split", ("adapt.replay.dual_mode=split",), doc="E's 40% inside every batch", max_seeds=8),
         Arm("r_matched", ("adapt.sac.updates_per_step=1/0.6",),
             doc="1/0.6 updates per env step: as many updates from R as SAC+HER+PER", max_seeds=8),
+        Arm("r_starved", ("adapt.replay.ratio=1/0", "adapt.sac.updates_per_step=0.6"),
+            doc="E off at 0.6 updates per env step: R's share of the paper arm's updates, no E batches"),
+    )),
+    # The same contrasts with no prior at all: the last task from scratch (adaptation budget and settings).
+    Experiment("mechanism", "Where E's cost comes from, without transfer: R's lost updates vs E's own batches",
+               "scratch", methods=("dual_buffer",), arms=(
+        Arm("e_off", ("adapt.replay.ratio=1/0",), doc="E never sampled: SAC+HER+PER's algorithm"),
+        Arm("r_matched", ("adapt.sac.updates_per_step=1/0.6",),
+            doc="1/0.6 updates per env step: R gets SAC+HER+PER's updates, E's batches on top"),
+        Arm("r_starved", ("adapt.replay.ratio=1/0", "adapt.sac.updates_per_step=0.6"),
+            doc="E off at 0.6 updates per env step: R's share of the paper arm's updates, no E batches"),
+    )),
+    Experiment("matched_chain", "R's updates matched in every stage: does the dual buffer's prior catch up?",
+               "chain", methods=("dual_buffer",), arms=(
+        Arm("r_matched_all", ("sac.updates_per_step=1/0.6",),
+            doc="1/0.6 updates per env step in every stage (source stages too)"),
+    )),
+    Experiment("budget", "The adaptation budget: 2x, 4x and 8x the paper arm's 12k env steps", "chain",
+               methods="transfer", arms=(
+        Arm("x2", doc="2x the adaptation budget", adapt_steps_factor=2.0),
+        Arm("x4", doc="4x the adaptation budget (the regime experiment's long arm)", adapt_steps_factor=4.0),
+        Arm("x8", doc="8x the adaptation budget", adapt_steps_factor=8.0, max_seeds=8),
     )),
     Experiment("shared_prior", "One prior for both methods: SAC+HER+PER's source stages", "chain",
                methods="transfer", arms=(
