@@ -57,6 +57,11 @@ IMPLEMENTATION_ONLY = ("update_impl", "compile")
 FP32_LEVEL_PRECISIONS = ("highest", "high", "medium")
 
 
+# (section or "", key, default) of settings added after run folders were first named (RunConfig.to_dict)
+ADDED_LATER = (("replay", "e_batches", "full"),)
+E_BATCHES = ("full", "critic")
+
+
 def run_identity(cfg: dict) -> dict:
     """A RunConfig dict (as in a run's config.json) without the settings that do not change its results."""
     out = json.loads(json.dumps(cfg))
@@ -132,6 +137,9 @@ class ReplayConfig:
     # dual buffer, transfer: keep E's rows from the source stages when a stage starts from another run's replay
     # (off: E starts empty, so it holds only this task's successes; R is carried either way)
     carry_success_buffer: bool = True
+    # dual buffer, "choose" mode: what a whole batch from E trains. "full" (Algorithm 1): critics, actor and
+    # alpha; "critic": the critics (and V) only, no actor or alpha step (the mechanism ablation, issue 30)
+    e_batches: str = "full"
 
 
 @dataclass
@@ -164,7 +172,13 @@ class RunConfig:
 
     # ----------------------------------------------------------------- helpers
     def to_dict(self) -> dict:
-        return dataclasses.asdict(self)
+        """Every setting, except those added after run folders were first named while they keep their
+        default: a config's dict, folder hash and identity stay what they were before the setting existed."""
+        d = dataclasses.asdict(self)
+        for section, key, default in ADDED_LATER:
+            if (d.get(section, d) if section else d).get(key) == default:
+                (d[section] if section else d).pop(key)
+        return d
 
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), indent=2, sort_keys=True)
@@ -199,9 +213,12 @@ class RunConfig:
                                      ("dual_mode", r.dual_mode, DUAL_MODES),
                                      ("update_schedule", s.update_schedule, UPDATE_SCHEDULES),
                                      ("success_buffer", r.success_buffer, SUCCESS_BUFFER_MODES),
+                                     ("e_batches", r.e_batches, E_BATCHES),
                                      ("sim_backend", self.sim_backend, SIM_BACKENDS)):
             if value not in choices:
                 raise ConfigError(f"unknown {name} {value!r} (choose {', '.join(choices)})")
+        if r.e_batches != "full" and r.dual_mode != "choose":
+            raise ConfigError(f"e_batches={r.e_batches!r} needs dual_mode 'choose' (split batches mix R and E rows)")
         if s.compile and s.update_impl != "fused":
             raise ConfigError("compile needs update_impl 'fused' (it compiles the fused update)")
         if s.compile and self.device == "cpu" and not any(shutil.which(c) for c in ("c++", "g++", "clang++")):

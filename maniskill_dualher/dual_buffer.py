@@ -131,7 +131,9 @@ class DualBufferReplay(BufferMethod):
     def _from_E(self, B: int, use_weights: bool) -> Batch:
         rows, _, _ = self.E.sample_arrays(B, self.rng)
         w = np.ones(B, np.float32) if use_weights else None
-        return to_batch(rows, w, Handle(np.zeros(0, np.int64), slice(0, 0), "E"), self.device)
+        batch = to_batch(rows, w, Handle(np.zeros(0, np.int64), slice(0, 0), "E"), self.device)
+        batch.critic_only = self.rcfg.e_batches == "critic"
+        return batch
 
     def _count(self, B: int, nR: int) -> None:
         self._batches += 1

@@ -38,6 +38,7 @@ PathLike = Union[str, Path]
 
 CONFIG = "config.json"
 METRICS = "metrics.csv"
+DIAGNOSTICS = "diagnostics.csv"
 CHECKPOINT = "checkpoint.pt"
 ORIGIN = "lineage.json"
 STAGE = "stage.json"
@@ -68,6 +69,16 @@ def write_done(run_dir: PathLike, final: dict, **extra) -> None:
 
 def metrics_text(rows: List[dict]) -> str:
     cols = list(METRIC_COLUMNS) + sorted({k for r in rows for k in r} - set(METRIC_COLUMNS))
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=cols, lineterminator="\n")
+    w.writeheader()
+    for r in rows:
+        w.writerow({k: r.get(k, "") for k in cols})
+    return buf.getvalue()
+
+
+def csv_text(rows: List[dict]) -> str:
+    cols = sorted({k for r in rows for k in r}, key=lambda k: (k != "env_steps", k))
     buf = io.StringIO()
     w = csv.DictWriter(buf, fieldnames=cols, lineterminator="\n")
     w.writeheader()
@@ -200,6 +211,10 @@ class RunFolder:
 
     def write_metrics(self, rows: List[dict]) -> None:
         write_metrics(self.path, rows)
+
+    def write_diagnostics(self, rows: List[dict]) -> None:
+        """diagnostics.csv: the learner's per-update logs, averaged per batch source between evaluations."""
+        atomic_write_text(self.path / DIAGNOSTICS, csv_text(rows))
 
     @property
     def done(self) -> bool:

@@ -165,6 +165,10 @@ class SAC(nn.Module):
             a = self.actor.mean_action(x) if deterministic else self.actor.sample(x)
         return a.cpu().numpy()
 
+    def policy_parameters(self) -> List[torch.Tensor]:
+        """The actor's parameters and log alpha: what a critic-only batch leaves alone."""
+        return list(self.actor.parameters()) + [self.log_alpha]
+
     @property
     def alpha(self) -> torch.Tensor:
         return self.log_alpha.exp()
@@ -232,6 +236,9 @@ class SAC(nn.Module):
 
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
+        if batch.critic_only:  # Adam skips parameters without a gradient: no actor or alpha step
+            for p in self.policy_parameters():
+                p.grad = None
         self.optimizer.step()
         with torch.no_grad():
             torch._foreach_lerp_(self._target_params, self._online_params, self.cfg.tau)

@@ -202,6 +202,8 @@ class FusedUpdate:
                 self.params_of[i].append(s.log_alpha)
             self.rows.append(0)
         self.params = self.params_of[0]
+        # per agent, which of its parameters a critic-only batch leaves without a step (actor, log alpha)
+        self.policy_ids = [{id(p) for p in s.policy_parameters()} for s in self.sacs]
         self.compute = self._compute
         if sac.cfg.compile:
             import torch._inductor.config as inductor_config
@@ -316,13 +318,14 @@ class FusedUpdate:
             terms["losses/alpha_loss"] = -(log_alpha.unsqueeze(-1) * (logp_pi + sac.target_entropy)).mean(-1)
         return grads, td.abs().sum(1), terms
 
-    def _step(self, i: int, grads: List[torch.Tensor]) -> None:
+    def _step(self, i: int, grads: List[torch.Tensor], critic_only: bool = False) -> None:
         """Agent i's share of the gradients into its parameters; its Adam step and Polyak average."""
         sac = self.sacs[i]
         for p, g, rows in zip(self.params_of[i], grads, self.rows):
             if len(self.sacs) > 1:
                 g = g[i] if rows <= 1 else g[i * rows:(i + 1) * rows]
-            p.grad = g
+            # Adam skips a parameter without a gradient: a critic-only batch moves no actor or alpha
+            p.grad = None if critic_only and id(p) in self.policy_ids[i] else g
         sac.optimizer.step()
         torch._foreach_lerp_(sac._target_params, sac._online_params, sac.cfg.tau)
         sac._n_updates += 1
@@ -336,7 +339,7 @@ class FusedUpdate:
         grads, td_abs, terms = self.compute(batch.obs.unsqueeze(0), batch.action.unsqueeze(0),
                                             batch.reward.unsqueeze(0), batch.next_obs.unsqueeze(0),
                                             batch.done.unsqueeze(0), w, pi_obs, sac.log_alpha.detach().view(1))
-        self._step(0, grads)
+        self._step(0, grads, batch.critic_only)
         logs = {k: float(v[0]) for k, v in terms.items()} if want_logs else {}
         return td_abs[0].cpu().numpy(), logs
 
@@ -361,7 +364,7 @@ class FusedUpdate:
                                             stack("next_obs", batches), stack("done", batches), w, pi_obs,
                                             log_alpha, eps)
         for i in range(len(self.sacs)):
-            self._step(i, grads)
+            self._step(i, grads, batches[i].critic_only)
         td = td_abs.cpu().numpy()
         return [td[i] for i in range(len(self.sacs))], [{k: float(v[i]) for k, v in terms.items()}
                                                          for i in range(len(self.sacs))]

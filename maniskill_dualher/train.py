@@ -39,6 +39,47 @@ from .sac import SAC
 DEMO_SEED_BASE = 2_000_000_000
 
 
+class Diagnostics:
+    """The learner's state on the batches it trained on, per batch source (R or E; R for single-buffer
+    methods): mean |TD| over every update, and alpha, policy entropy, mean Q and the critic loss over the updates
+    that log (every ``log_every``), averaged between evaluations. Reads what the update returns; changes nothing."""
+    STATS = ("losses/alpha", "losses/entropy", "losses/qf_values", "losses/qf_loss")
+
+    def __init__(self):
+        self.rows: List[dict] = []
+        self._win: dict = {}
+
+    def add(self, batch, td_abs: np.ndarray, logs: Optional[dict]) -> None:
+        src = getattr(batch.handle, "source", "R") or "R"
+        w = self._win.setdefault(src, {"updates": 0, "td": 0.0, "logged": 0, **{k: 0.0 for k in self.STATS}})
+        w["updates"] += 1
+        w["td"] += float(np.mean(td_abs))
+        if logs:
+            w["logged"] += 1
+            for k in self.STATS:
+                w[k] += float(logs.get(k, float("nan")))
+
+    def close_window(self, env_steps: int, updates: int) -> List[dict]:
+        """One row for the window since the last evaluation; -> every row so far."""
+        row = {"env_steps": env_steps, "updates": updates}
+        for src, w in sorted(self._win.items()):
+            row[f"{src}_updates"] = w["updates"]
+            row[f"{src}_td_abs"] = round(w["td"] / w["updates"], 6)
+            row[f"{src}_logged"] = w["logged"]
+            for k in self.STATS:
+                row[f"{src}_{k.split('/')[-1]}"] = round(w[k] / w["logged"], 6) if w["logged"] else ""
+        self._win = {}
+        self.rows.append(row)
+        return self.rows
+
+    def state_dict(self) -> dict:
+        return {"rows": list(self.rows), "window": dict(self._win)}
+
+    def load_state_dict(self, state: Optional[dict]) -> None:
+        if state:
+            self.rows, self._win = list(state["rows"]), dict(state["window"])
+
+
 class Trainer:
     # called as progress_hook(out_dir, env_steps, total_steps) after every env step when set (a callable
     # object, or a staticmethod): the sweep's progress file, experiment/backends.py: ProgressFile
@@ -67,6 +108,7 @@ class Trainer:
         self.eval_eps = EnvEpisodes(self.env, cfg.terminate_on_success)  # its own clock and arrays
         self.count = Counters()
         self.rows: List[dict] = []  # metrics.csv: one per evaluation
+        self.diag = Diagnostics()   # diagnostics.csv: the learner's logs per batch source (R or E)
         self.resumed = False
         if self.folder.has_checkpoint:
             self._restore(self.folder.load_checkpoint())
@@ -98,7 +140,8 @@ class Trainer:
     # ------------------------------------------------------------ checkpoint
     def _state(self) -> dict:
         return {"config": self.cfg.to_dict(), "agent": self.agent.full_state(), "method": self.method.state_dict(),
-                "counters": self.count.state_dict(), "rows": self.rows, "rng": self.rng.bit_generator.state,
+                "counters": self.count.state_dict(), "rows": self.rows, "diag": self.diag.state_dict(),
+                "rng": self.rng.bit_generator.state,
                 "torch_rng": torch.get_rng_state()}
 
     def _restore(self, state: dict) -> None:
@@ -106,6 +149,7 @@ class Trainer:
         self.method.load_state_dict(state["method"])
         self.count = Counters.from_state(state["counters"])
         self.rows = list(state["rows"])
+        self.diag.load_state_dict(state.get("diag"))
         self.rng.bit_generator.state = state["rng"]
         torch.set_rng_state(state["torch_rng"])
 
@@ -276,6 +320,7 @@ class Trainer:
         c = self.count
         self.method.update_priorities(batch, td_abs)
         c.updates += 1
+        self.diag.add(batch, td_abs, logs if log_now else None)
         if log_now:
             bad = [k for k, v in logs.items() if not math.isfinite(v)]
             if bad:
@@ -346,6 +391,7 @@ class Trainer:
             if k != "env_steps" and isinstance(v, (int, float)) and not k.startswith("replay_"):
                 self.tb.add_scalar(f"charts/{k}", v, c.env_steps)
         self.folder.write_metrics(self.rows)
+        self.folder.write_diagnostics(self.diag.close_window(c.env_steps, c.updates))
         self._train_charts(row)
         self._save_policies(row["eval_success_rate"])
         return row

@@ -58,6 +58,7 @@ class Batch:
     done: torch.Tensor       # (B,) 1.0 where terminal
     weights: Optional[torch.Tensor] = None  # (B,) importance-sampling weights, or None
     handle: Any = None       # opaque: what update_priorities needs (indices, source buffer)
+    critic_only: bool = False  # train the critics (and V) only: no actor or alpha step on this batch
 
 
 class ReplayMethod(Protocol):

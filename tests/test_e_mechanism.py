@@ -1,0 +1,136 @@
+"""The pieces the mechanism ablations (issue 30) stand on: the dual buffer at ratio 1/0 against SAC+HER+PER,
+E batches that train the critics only, the learner diagnostics per batch source, and a new setting that
+leaves every existing run's config (and folder name) as it was."""
+import dataclasses
+
+import numpy as np
+import pytest
+import torch
+
+from maniskill_dualher.config import ConfigError, RunConfig, SACConfig
+from maniskill_dualher.methods import make_method
+from maniskill_dualher.replay.base import Batch
+from maniskill_dualher.replay.buffer import Handle
+from maniskill_dualher.sac import SAC
+from maniskill_dualher.sac_fused import FusedUpdate
+from maniskill_dualher.train import Diagnostics
+
+from fakes import point_episode, spec
+
+D, A, B = 9, 2, 32
+
+
+def _method(name, seed, **replay):
+    cfg = RunConfig(method=name)
+    cfg.replay.capacity, cfg.sac.batch_size = 10_000, B
+    for k, v in replay.items():
+        setattr(cfg.replay, k, v)
+    return make_method(cfg.validate(), spec(), np.random.default_rng(seed))
+
+
+def _fill(m):
+    m.add_episode(point_episode(T=6, N=3, success_at=[(2, 1), (4, 2)], seed=1))
+    m.add_episode(point_episode(T=6, N=3, seed=2))
+
+
+def test_ratio_one_zero_is_sac_her_per_but_for_one_draw_per_batch():
+    """Same R (real + hindsight rows, same priorities), same batches, except that the dual buffer's
+    "choose" draws one uniform number per batch first: the two runs are the same algorithm, not the same bits."""
+    dual, her = _method("dual_buffer", 0, ratio=(1.0, 0.0)), _method("sac_her_per", 0)
+    _fill(dual), _fill(her)
+    n = len(dual.main)
+    assert n == len(her.main) and n > 0
+    a, b = dual.main.storage.get(np.arange(n)), her.main.storage.get(np.arange(n))
+    assert all(np.array_equal(a[k], b[k]) for k in a)
+    for _ in range(20):
+        her.rng.random()  # the draw dual's "choose" makes (it always picks R at ratio 1/0)
+        bd, bh = dual.sample(), her.sample()
+        assert bd.handle.source == "R"
+        assert torch.equal(bd.obs, bh.obs) and torch.equal(bd.reward, bh.reward)
+        td = np.abs(np.random.default_rng(len(bd.obs)).normal(size=B)).astype(np.float32)
+        dual.update_priorities(bd, td), her.update_priorities(bh, td)
+    # without that alignment the streams part: not bit-identical
+    d2, h2 = _method("dual_buffer", 0, ratio=(1.0, 0.0)), _method("sac_her_per", 0)
+    _fill(d2), _fill(h2)
+    assert any(not torch.equal(d2.sample().obs, h2.sample().obs) for _ in range(5))
+
+
+def test_e_batches_critic_marks_only_E_batches():
+    m = _method("dual_buffer", 0, ratio=(0.5, 0.5), e_batches="critic")
+    _fill(m)
+    seen = {"R": 0, "E": 0}
+    for _ in range(200):
+        b = m.sample()
+        seen[b.handle.source] += 1
+        assert b.critic_only == (b.handle.source == "E")
+    assert seen["R"] > 0 and seen["E"] > 0
+    m2 = _method("dual_buffer", 0, ratio=(0.5, 0.5))
+    _fill(m2)
+    assert not any(m2.sample().critic_only for _ in range(50))
+
+
+def _batch(seed, critic_only):
+    g = torch.Generator().manual_seed(seed)
+    return Batch(obs=torch.randn(B, D, generator=g), action=torch.rand(B, A, generator=g) * 2 - 1,
+                 reward=torch.ones(B), next_obs=torch.randn(B, D, generator=g), done=torch.ones(B),
+                 critic_only=critic_only)
+
+
+def _agent(impl, seed=0):
+    torch.manual_seed(seed)
+    return SAC(D, A, SACConfig(variant="modern", hidden=(16, 16), lr=1e-2, batch_size=B, update_impl=impl))
+
+
+def _snap(params):
+    return [p.detach().clone() for p in params]
+
+
+@pytest.mark.parametrize("impl", ["fused", "autograd"])
+def test_critic_only_batch_moves_critics_not_actor_or_alpha(impl):
+    sac = _agent(impl)
+    for critic_only in (False, True, False):  # Adam state exists before and after a skipped step
+        pol, crit = _snap(sac.policy_parameters()), _snap(sac.q.parameters())
+        sac.update(_batch(int(critic_only), critic_only))
+        pol_moved = any(not torch.equal(a, b) for a, b in zip(pol, sac.policy_parameters()))
+        crit_moved = any(not torch.equal(a, b) for a, b in zip(crit, sac.q.parameters()))
+        assert crit_moved
+        assert pol_moved == (not critic_only)
+
+
+def test_packed_update_skips_only_the_critic_only_members_policy():
+    agents = [_agent("fused", s) for s in (0, 1)]
+    fused = FusedUpdate(agents)
+    before = [_snap(a.policy_parameters()) for a in agents]
+    batches = [_batch(3, False), _batch(4, True)]
+    fused.step_pack(batches, [None, None], lambda i, shapes: [torch.randn(s) for s in shapes])
+    moved = [any(not torch.equal(x, y) for x, y in zip(b, a.policy_parameters())) for b, a in zip(before, agents)]
+    assert moved == [True, False]
+
+
+def test_new_setting_at_its_default_leaves_the_config_dict_unchanged():
+    cfg = RunConfig()
+    assert "e_batches" not in cfg.to_dict()["replay"]  # folder hashes of earlier runs stay valid
+    cfg.replay.e_batches = "critic"
+    d = cfg.to_dict()
+    assert d["replay"]["e_batches"] == "critic"
+    assert RunConfig.from_dict(d).replay.e_batches == "critic"
+    assert RunConfig.from_dict(RunConfig().to_dict()).replay.e_batches == "full"
+    with pytest.raises(ConfigError, match="e_batches"):
+        dataclasses.replace(cfg, replay=dataclasses.replace(cfg.replay, dual_mode="split")).validate()
+    with pytest.raises(ConfigError, match="'both'"):
+        dataclasses.replace(cfg, replay=dataclasses.replace(cfg.replay, e_batches="both")).validate()
+
+
+def test_diagnostics_average_per_source_between_evaluations():
+    d = Diagnostics()
+    logs = {"losses/alpha": 0.1, "losses/entropy": 2.0, "losses/qf_values": 1.0, "losses/qf_loss": 0.5}
+    r = Batch(*(torch.zeros(1),) * 5, handle=Handle(np.zeros(1, np.int64), source="R"))
+    e = Batch(*(torch.zeros(1),) * 5, handle=Handle(np.zeros(0, np.int64), source="E"))
+    d.add(r, np.array([1.0, 3.0]), logs)
+    d.add(r, np.array([4.0]), None)
+    d.add(e, np.array([0.5]), {**logs, "losses/qf_values": 3.0})
+    row = d.close_window(100, 3)[-1]
+    assert row["R_updates"] == 2 and row["R_td_abs"] == 3.0 and row["R_logged"] == 1
+    assert row["E_qf_values"] == 3.0 and row["R_qf_values"] == 1.0
+    d.load_state_dict(d.state_dict())
+    assert d.close_window(200, 3)[-1] == {"env_steps": 200, "updates": 3}
