@@ -123,10 +123,14 @@ def run_case(name: str, root: Path) -> dict:
             raise errs[0]
         return {f"m{i}": digest_run(root / f"m{i}", root) for i in range(len(jobs))}
     from maniskill_dualher.experiment import protocol
+    try:  # a chain is trained by train.py (after the refactor); before it, by protocol.run_transfer
+        from maniskill_dualher.train import train_chain as run_transfer
+    except ImportError:
+        run_transfer = protocol.run_transfer
     src = _config(spec["source"], "ReachTarget-v1", [])
     stages = protocol.make_stages(src, ["ReachTarget-v1", "CloseMicrowave-v1"], [STEPS, STEPS])
     stages[-1].method = spec["adapt"]
-    protocol.run_transfer(stages, root / "chain", carry_replay=True, show_progress=False)
+    run_transfer(stages, root / "chain", carry_replay=True, show_progress=False)
     dirs = protocol.transfer_chain_dirs(root / "chain", stages, carry_replay=True)
     return {f"stage{i}": digest_run(d, root) for i, d in enumerate(dirs)}
 

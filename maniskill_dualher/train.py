@@ -131,6 +131,7 @@ def train_runs(jobs: Sequence[Job], stop_at: Optional[int] = None, progress: Opt
     into a folder that may hold another run. A kill or interrupt leaves every run's last checkpoint standing."""
     results: List[Optional[dict]] = [None] * len(jobs)
     runs: List[Trainer] = []
+    jobs = [Job(**j) if isinstance(j, dict) else j for j in jobs]  # the sweep's workers pass plain dicts
     try:
         for k, job in enumerate(jobs):
             folder = RunFolder(job.out)
@@ -163,6 +164,20 @@ def run_training(cfg: RunConfig, out_dir, init_from=None, carry_replay: bool = F
     if "error" in res:
         raise res["error"]
     return res["row"]
+
+
+def train_chain(stages: List[RunConfig], out_dir, carry_replay: bool = True,
+                show_progress: bool = True) -> List[dict]:
+    """A transfer chain (``experiment/protocol.py``) in ``out_dir``, stage by stage; finished stages are
+    skipped, an interrupted one resumes. Returns each stage's final metrics row."""
+    from .experiment import protocol
+
+    protocol.validate_chain(stages)
+    rows = []
+    for i in range(len(stages)):
+        job = protocol.stage_job(stages, i, out_dir, carry_replay)
+        rows.append(run_training(job.pop("cfg"), job.pop("out"), show_progress=show_progress, **job))
+    return rows
 
 
 # --------------------------------------------------------------------------- one run

@@ -49,6 +49,18 @@ class Node:
         return p
 
 
+def job_for(payload: dict, check_parent: bool = True) -> dict:
+    """A node's payload -> its run's arguments (``train.Job``'s fields; a chain stage's folder, parent and
+    replay flags and its stage.json from ``protocol.stage_job``). The local, Ray and SLURM (command line)
+    paths all take a run from here. ``check_parent=False``: the parent runs later (a command list)."""
+    if "stages" in payload:
+        stages = [RunConfig.from_dict(s) for s in payload["stages"]]
+        return protocol.stage_job(stages, payload["stage"], payload["chain_dir"], payload["carry_replay"],
+                                  check_parent=check_parent)
+    return dict(cfg=RunConfig.from_dict(payload["cfg"]), out=payload["out"], init_from=None,
+                carry_replay=False, keep_replay=False)
+
+
 def preset_from_definition(d: dict) -> Preset:
     b = d["budgets"]
     return Preset("", single_steps=b["single"], stage_steps=b["source"], adaptation_steps=b["adapt"],

@@ -16,10 +16,10 @@ import json
 import os
 import sys
 from pathlib import Path
-from typing import List, Optional, Sequence, Tuple
+from typing import Callable, List, Optional, Sequence, Tuple
 
 from .. import rundir
-from ..cli import OneLineParser
+from ..cmdline import OneLineParser
 from ..config import TASKS, ConfigError
 from ..methods import METHOD_SPECS
 from ..rundir import RUNS_DIR, SWEEP
@@ -241,13 +241,18 @@ def write_cells(nodes: List[Node], out: Path) -> None:
             rundir.write_json(path, new)
 
 
-def main(argv: Optional[Sequence[str]] = None) -> int:
+def main(argv: Optional[Sequence[str]] = None, train: Optional[Callable] = None,
+         report: Optional[Callable] = None) -> int:
+    """The sweep. ``train``: the training driver (``train.train_runs``) its workers call; ``report``: the
+    report builder (``analysis.report.build_report``) run at the end. The entry point
+    (``python -m maniskill_dualher.sweep``, ``maniskill_dualher/sweep.py``) hands both in, so this layer
+    imports neither; without ``train`` the sweep can plan (--dry-run, --emit-commands) but not run."""
     import contextlib
     with contextlib.ExitStack() as held:  # the out folder's lock (lock.py), released however the sweep ends
-        return _main(argv, held)
+        return _main(argv, held, train, report)
 
 
-def _main(argv: Optional[Sequence[str]], held) -> int:
+def _main(argv: Optional[Sequence[str]], held, train: Optional[Callable], report: Optional[Callable]) -> int:
     from .backends import InlineBackend, LocalBackend, RayBackend, emit_commands, run_grid
     from .lock import FolderLock
 
@@ -273,6 +278,8 @@ def _main(argv: Optional[Sequence[str]], held) -> int:
             raise ConfigError(f"--retries must be >= 0, got {a.retries}")
         if a.emit_commands and a.dry_run:
             raise ConfigError("--emit-commands and --dry-run: choose one")
+        if train is None and not (a.dry_run or a.emit_commands):
+            raise ConfigError("no training driver given: run python -m maniskill_dualher.sweep")
         check_out_folder(out, d, a.force)
         if not a.dry_run:  # one sweep per folder; then look again, now that no other sweep can write it
             held.enter_context(FolderLock(out))
@@ -311,8 +318,8 @@ def _main(argv: Optional[Sequence[str]], held) -> int:
         from .cost import describe, grid_cost
         for line in describe(grid_cost(todo_cfgs, a.pack), workers or 1):
             print(line, flush=True)
-    backend = {"local": lambda: LocalBackend(workers), "inline": InlineBackend,
-               "ray": lambda: RayBackend(workers, a.ray_address, retries=a.retries)}[a.backend]()
+    backend = {"local": lambda: LocalBackend(workers, train), "inline": lambda: InlineBackend(train),
+               "ray": lambda: RayBackend(workers, a.ray_address, train, retries=a.retries)}[a.backend]()
     cancel = True
     try:
         failed = run_grid(nodes, out, backend, retries=a.retries, pack=a.pack)
@@ -322,15 +329,11 @@ def _main(argv: Optional[Sequence[str]], held) -> int:
         return 130
     finally:
         backend.close(cancel=cancel)
-    if not a.no_report:
-        from ..analysis.report import build_report
-        written = build_report(out)
+    if not a.no_report and report is not None:
+        written = report(out)
         print(f"report: {len(written)} files in {out} (summary: {out / 'summary.md'})")
     if failed:
         print(f"error: {len(failed)} runs did not finish (first: {failed[0]}); rerun to retry", file=sys.stderr)
         return 1
     return 0
 
-
-if __name__ == "__main__":
-    sys.exit(main())
