@@ -24,7 +24,7 @@ from ..config import TASKS, ConfigError
 from ..methods import METHOD_SPECS
 from ..rundir import RUNS_DIR, SWEEP
 from . import overrides
-from .grid import Node, build_grid
+from .grid import Node, build_grid, capped_arms
 from .presets import PRESETS, preset
 from .registry import EXPERIMENTS, ablation_experiments, default_experiments
 
@@ -191,7 +191,11 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--methods", help=f"comma list of {', '.join(METHOD_SPECS)} (default: all; each experiment "
                                      "uses those of them it is defined for)")
     p.add_argument("--seeds", help="a count (3 -> seeds 0,1,2) or a list (0,4,7; one seed: '7,') for every "
-                                   "experiment; default: the preset's")
+                                   "experiment; default: the preset's. Costly arms are capped (Arm/Experiment "
+                                   "max_seeds; --dry-run names them): more seeds than a selected arm's cap are "
+                                   "refused unless --allow-capped (then the cap applies)")
+    p.add_argument("--allow-capped", action="store_true",
+                   help="accept that capped arms run fewer seeds than --seeds/--chain-seeds ask")
     p.add_argument("--chain-seeds", "--transfer-seeds", dest="chain_seeds",
                    help="seeds of chain and scratch experiments only (same syntax as --seeds)")
     p.add_argument("--task-order", default=",".join(TASKS),
@@ -260,6 +264,12 @@ def _main(argv: Optional[Sequence[str]], held, train: Optional[Callable], report
     a = parser.parse_args(argv)
     try:  # validate everything before writing anything
         d = definition_from_args(a)
+        capped = capped_arms(d)
+        explicit = a.seeds is not None or a.chain_seeds is not None
+        if capped and explicit and not a.allow_capped:
+            arm, cap, asked = capped[0]
+            raise ConfigError(f"{arm} runs at most {cap} seeds, {asked} asked ({len(capped)} capped arms; "
+                              f"--dry-run lists them): ask for fewer, select other arms, or pass --allow-capped")
         nodes = build_grid(d)
         d["runs"] = sorted(n.rel for n in nodes)
         out = Path(a.out if a.out else Path(RUNS_DIR) / a.preset)
@@ -289,6 +299,8 @@ def _main(argv: Optional[Sequence[str]], held, train: Optional[Callable], report
         return 2
     workers = a.workers or (None if a.ray_address else min(2, os.cpu_count() or 1))
     todo_cfgs = [n.cfg for n in nodes if not rundir.is_done(out / n.rel)]
+    for arm, cap, asked in capped:  # never a silent cut
+        print(f"capped: {arm} runs {cap} of the {asked} seeds asked (max_seeds)")
     if a.dry_run:
         for n in nodes:
             state = "done" if rundir.is_done(out / n.rel) else "todo"
