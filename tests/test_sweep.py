@@ -489,3 +489,23 @@ def test_readme_first_command_on_a_fresh_copy_writes_outside_the_reference(tmp_p
     assert after == before, "the committed reference was touched"
     status = subprocess.run(["git", "status", "--porcelain"], cwd=repo, capture_output=True, text=True).stdout
     assert status == "", status
+
+
+def test_capped_arms_are_named_and_an_explicit_request_beyond_a_cap_is_refused(tmp_path, capsys):
+    """Arm/Experiment.max_seeds never cut silently: every plan names the capped arms; --seeds beyond a selected
+    arm's cap is one line, exit 2, nothing written, unless --allow-capped."""
+    from maniskill_dualher.experiment.registry import EXPERIMENTS
+    capped = [(e.name, a.name, min(c for c in (e.max_seeds, a.max_seeds) if c)) for e in EXPERIMENTS.values()
+              for a in e.arms if e.max_seeds or a.max_seeds]
+    assert capped, "the registry has capped arms"
+    name, arm, cap = capped[0]
+    out = tmp_path / "o"
+    args = ["--preset", "smoke", "--experiments", f"{name}:{arm}", "--out", str(out)]
+    assert run_sweep([*args, "--seeds", str(cap + 1), "--dry-run"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"error: {name}/{arm} runs at most {cap} seeds, {cap + 1} asked")
+    assert not out.exists()
+    assert run_sweep([*args, "--seeds", str(cap + 1), "--dry-run", "--allow-capped"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert f"capped: {name}/{arm} runs {cap} of the {cap + 1} seeds asked (max_seeds)" in lines
+    assert "--allow-capped" in sweep.make_parser().format_help()
