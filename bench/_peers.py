@@ -82,7 +82,7 @@ class GoalDictEnv(gym.Env):
 
     def __init__(self, env_id: str, max_episode_steps=None, control_mode="pd_joint_delta_pos",
                  reward_mode: str = "sparse", terminate_on_success: bool = False):
-        import maniskill_dualher  # noqa: F401  (registers the tasks)
+        import maniskill_dualher.tasks  # noqa: F401  (registers the tasks)
         from mani_skill.utils.wrappers.gymnasium import CPUGymWrapper
         from maniskill_dualher.tasks.common import GOAL_DIM, OBS_DIM
         kw = dict(sim_backend="physx_cpu", render_backend="none", obs_mode="state", reward_mode=reward_mode)

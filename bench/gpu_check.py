@@ -620,7 +620,7 @@ def _quick_config(method: str, seed: int):
 
 def measure_train_split(sim: Sim, task: str, num_envs: int, total_steps: int, out_dir: str, log=print) -> dict:
     """A short sac_her_per run (quick preset): where the training loop's wall time goes."""
-    from maniskill_dualher.train import Trainer
+    from maniskill_dualher.train import Trainer, run_one
     cfg = _quick_config("sac_her_per", 0)
     cfg.env_id, cfg.sim_backend, cfg.device, cfg.gpu_memory_scale = task, sim.backend, sim.device, sim.gpu_memory_scale
     cfg.num_envs = num_envs if sim.gpu else 1
@@ -643,7 +643,7 @@ def measure_train_split(sim: Sim, task: str, num_envs: int, total_steps: int, ou
             setattr(obj, attr, tm.wrap(name, getattr(obj, attr)))
     try:
         t0 = time.perf_counter()
-        tr.run()
+        run_one(tr)
         sim.sync()
         wall = time.perf_counter() - t0
     finally:

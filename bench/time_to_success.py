@@ -128,12 +128,12 @@ def _point(env_steps: int, success: float, wall: float, **extra) -> dict:
 
 
 def run_ours(task: str, seed: int, args, rules: dict) -> dict:
-    from maniskill_dualher.train import Trainer
+    from maniskill_dualher.train import Trainer, run_one
     cfg = our_config(task, seed, args)
     tmp = tempfile.mkdtemp(prefix="tts_ours_")
     t_setup = time.perf_counter()
     tr = Trainer(cfg, os.path.join(tmp, "run"), show_progress=False)
-    tr.save_checkpoint = lambda: None  # no checkpoints (the peers write none)
+    tr.save_checkpoint = lambda *a, **k: None  # no checkpoints (the peers write none)
     setup_s = time.perf_counter() - t_setup
     E = cfg.eval_every
     wall, curve, reached = 0.0, [], None
@@ -142,7 +142,7 @@ def run_ours(task: str, seed: int, args, rules: dict) -> dict:
             before = tr.env_steps
             torch.set_num_threads(1)
             t0 = time.perf_counter()
-            final = tr.run(stop_at=(tr.env_steps // E + 1) * E)
+            final = run_one(tr, stop_at=(tr.env_steps // E + 1) * E)
             wall += time.perf_counter() - t0
             row = tr.rows[-1] if tr.rows else None
             if row is not None and (not curve or int(row["env_steps"]) != curve[-1]["env_steps"]):

@@ -20,7 +20,7 @@ control, with torch's "medium" switch set around its calls. SBX runs as users ge
 Method. Each contender warms up untimed (``learning_starts`` = 1000 random steps, then 100 learning steps;
 for SBX that includes the JIT compilation). Then the timed env steps are run in alternating chunks (ours
 paper, ours modern, SB3, SBX, ours paper, ...) so the contenders share the shared machine's load. Ours is
-our real loop: ``Trainer.run(stop_at=...)`` (evaluation and checkpoints pushed beyond the run; the
+our real loop: ``train.run_one(trainer, stop_at=...)`` (evaluation and checkpoints pushed beyond the run; the
 stop-checkpoint is replaced by a time stamp, so a chunk is timed from the call to the end of its last
 episode). SB3 and SBX are ``model.learn(chunk, reset_num_timesteps=False)``. Threads: torch uses
 ``torch.set_num_threads(--threads)``; OpenMP/MKL get ``--threads`` and, with ``--threads 1``, JAX gets one
@@ -90,7 +90,7 @@ class Ours:
         self.tr = Trainer(cfg, out, show_progress=False)
         self._stop_t = None
 
-        def stamp():  # replaces the stop-checkpoint: the chunk ends when its last episode is stored
+        def stamp(*a, **k):  # replaces the stop-checkpoint: the chunk ends when its last episode is stored
             self._stop_t = time.perf_counter()
         self.tr.save_checkpoint = stamp
 
@@ -104,7 +104,8 @@ class Ours:
         target = self.tr.env_steps + n
         t0 = time.perf_counter()
         self._stop_t = None
-        self.tr.run(stop_at=target)
+        from maniskill_dualher.train import run_one
+        run_one(self.tr, stop_at=target)
         assert self._stop_t is not None and self.tr.env_steps >= target
         return self._stop_t - t0
 
@@ -119,13 +120,11 @@ class Ours:
         return s0 / dt
 
     def update_fns(self):
-        import inspect
-        logs = {}
         tr = self.tr
-        args = (logs,) if inspect.signature(tr._update).parameters else ()  # older loops took a logs dict
 
         def full():  # exactly the loop's update: sample + SAC.update + priority write-back
-            tr._update(*args)
+            batch, actor_batch, log_now = tr.sample()
+            tr.learn(batch, *tr.agent.update(batch, actor_batch, want_logs=log_now), log_now)
         batch = tr.method.sample(tr.cfg.sac.batch_size)
 
         def sac_only():

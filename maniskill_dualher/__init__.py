@@ -1,6 +1,8 @@
 """maniskill_dualher: prioritized hindsight with a dual replay buffer (Beyene & Han 2022) on ManiSkill3.
 
-Importing this package registers the ManiSkill tasks ReachTarget-v1, CloseBox-v1 and CloseMicrowave-v1.
+``import maniskill_dualher.tasks`` registers the ManiSkill tasks ReachTarget-v1, CloseBox-v1 and
+CloseMicrowave-v1 (as ``import mani_skill.envs`` registers ManiSkill's own); the commands and ``envs.make_env``
+do it. Importing the package itself loads nothing heavy, so the analysis runs without torch or the simulator.
 """
 import os
 import warnings
@@ -15,7 +17,5 @@ _root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 if os.path.isfile(os.path.join(_root, "tasks", "__init__.py")):
     __path__.append(_root)  # type: ignore[name-defined]  # a source checkout
 del _root
-
-from . import tasks as _tasks  # noqa: F401,E402  (registers the environments)
 
 __version__ = "0.1.0"

@@ -9,39 +9,8 @@ import json
 import sys
 from pathlib import Path
 
+from .cmdline import OneLineParser  # noqa: F401 (train's parser; evaluate imports it from here)
 from .config import ConfigError, ReplayConfig, RunConfig, SACConfig, field_docs
-
-
-class OneLineParser(argparse.ArgumentParser):
-    """argparse that answers bad input with one line on stderr and exit code 2 (no 40-line usage)."""
-
-    def error(self, message):  # noqa: D401
-        self.exit(2, f"error: {message} (see --help)\n")
-
-    def parse_args(self, args=None, namespace=None):
-        return super().parse_args(_glue_negative_values(self, sys.argv[1:] if args is None else list(args)),
-                                  namespace)
-
-
-def _glue_negative_values(parser: argparse.ArgumentParser, argv):
-    """``--ratio -0.2/1.2`` -> ``--ratio=-0.2/1.2``: argparse takes a value starting with '-' for a flag
-    unless it is a plain negative number; glue it to its flag so validation can name the bad value."""
-    takes_value = {o for a in parser._actions if a.nargs is None and a.option_strings
-                   and not isinstance(a, (argparse._StoreTrueAction, argparse._StoreFalseAction,
-                                          argparse.BooleanOptionalAction))
-                   for o in a.option_strings}
-    out, i = [], 0
-    while i < len(argv):
-        a = argv[i]
-        if a in takes_value and i + 1 < len(argv) and len(argv[i + 1]) > 1 and argv[i + 1][0] == "-" \
-                and (argv[i + 1][1].isdigit() or argv[i + 1][1] == "."):
-            out.append(f"{a}={argv[i + 1]}")
-            i += 2
-            continue
-        out.append(a)
-        i += 1
-    return out
-
 
 # --------------------------------------------------------------------------- python -m maniskill_dualher.train
 _SECTIONS = {"sac": SACConfig, "replay": ReplayConfig}

@@ -236,5 +236,5 @@ def _known_task_ids():
 
 
 def make_env(cfg: RunConfig) -> BatchEnv:
-    import maniskill_dualher  # noqa: F401  (registers our tasks)
+    import maniskill_dualher.tasks  # noqa: F401  (registers our tasks)
     return BatchEnv(cfg)

@@ -506,7 +506,7 @@ def main(argv=None) -> int:
 
 def _known_env(env_id: str) -> None:
     import gymnasium as gym
-    import maniskill_dualher  # noqa: F401  (registers our tasks)
+    import maniskill_dualher.tasks  # noqa: F401  (registers our tasks)
     if env_id not in gym.registry:
         raise ConfigError(f"unknown environment {env_id!r} (our tasks: {', '.join(OUR_TASKS)})")
 

@@ -50,22 +50,11 @@ def policy_state(agent, spec, cfg, env_steps: int = 0, eval_success: Optional[fl
     }
 
 
-def save_policy(source, path: PathLike, *, spec=None, cfg=None, env_steps: Optional[int] = None,
-                eval_success: Optional[float] = None) -> Path:
-    """Write a policy file atomically. ``source``: a train.Trainer (spec, config and env steps come from it)
-    or a sac.SAC agent (then give ``spec`` and ``cfg``). Returns the path written."""
-    control_mode = None
-    if hasattr(source, "agent"):  # a Trainer
-        agent = source.agent
-        spec = spec if spec is not None else source.spec
-        cfg = cfg if cfg is not None else source.cfg
-        env_steps = source.env_steps if env_steps is None else env_steps
-        control_mode = getattr(getattr(source.env, "unwrapped", None), "control_mode", None)
-    else:
-        agent = source
-        if spec is None or cfg is None:
-            raise ValueError("save_policy(agent, path) needs spec= (envs.EnvSpec) and cfg= (RunConfig)")
-    state = policy_state(agent, spec, cfg, env_steps or 0, eval_success, control_mode=control_mode)
+def save_policy(agent, path: PathLike, *, spec, cfg, env_steps: int = 0, eval_success: Optional[float] = None,
+                control_mode: Optional[str] = None) -> Path:
+    """Write the policy file of a sac.SAC ``agent`` acting in an env described by ``spec`` (envs.EnvSpec) under
+    ``cfg`` (a RunConfig or its dict) atomically. Returns the path written."""
+    state = policy_state(agent, spec, cfg, env_steps, eval_success, control_mode=control_mode)
     atomic_torch_save(state, Path(path))
     return Path(path)
 

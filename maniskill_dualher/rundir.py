@@ -5,6 +5,8 @@ A run folder (written by ``train.py``; a transfer stage also by ``experiment/pro
     config.json     the RunConfig (a different config in the same folder is refused)
     metrics.csv     one row per evaluation (METRIC_COLUMNS first)
     checkpoint.pt   networks, optimizer, replay (until finished, or kept for a successor stage), RNG
+    checkpoint.prev.pt  the checkpoint before it, while the run is unfinished: an unreadable latest one
+                    (a kill mid-write on a filesystem without atomic rename, a bad disk) falls back to it
     lineage.json    where its networks (and replay) came from, if transferred
     stage.json      its place in a transfer chain (index, parent folder, carry flag)
     cell.json       written by the sweep: the cells it serves (experiment, arm, task, chain, method, variant,
@@ -29,6 +31,8 @@ from __future__ import annotations
 import csv
 import io
 import json
+import os
+import sys
 from pathlib import Path
 from typing import Dict, List, Optional, Union
 
@@ -40,6 +44,7 @@ CONFIG = "config.json"
 METRICS = "metrics.csv"
 DIAGNOSTICS = "diagnostics.csv"
 CHECKPOINT = "checkpoint.pt"
+CHECKPOINT_PREV = "checkpoint.prev.pt"
 ORIGIN = "lineage.json"
 STAGE = "stage.json"
 CELL = "cell.json"
@@ -138,17 +143,28 @@ def differing_keys(a: dict, b: dict, prefix: str = "") -> List[str]:
 
 
 def load_checkpoint(run_dir: PathLike) -> dict:
-    """A run folder's checkpoint.pt (ConfigError if missing or unreadable)."""
+    """A run folder's checkpoint: checkpoint.pt, or, when that is missing or unreadable, the previous one
+    (checkpoint.prev.pt) with one warning line on stderr. ConfigError if neither can be read."""
     import torch  # only where a run happens: the analysis reads folders without torch
 
     from .config import ConfigError
-    path = Path(run_dir) / CHECKPOINT
-    if not path.is_file():
-        raise ConfigError(f"missing checkpoint: {path}")
-    try:
-        return torch.load(path, map_location="cpu", weights_only=False)
-    except Exception as e:  # a truncated or foreign file
-        raise ConfigError(f"unreadable checkpoint {path}: {type(e).__name__}") from None
+    latest, prev = Path(run_dir) / CHECKPOINT, Path(run_dir) / CHECKPOINT_PREV
+    if not latest.is_file() and not prev.is_file():
+        raise ConfigError(f"missing checkpoint: {latest}")
+    problem = None
+    for path in (latest, prev):
+        if not path.is_file():
+            continue
+        try:
+            state = torch.load(path, map_location="cpu", weights_only=False)
+        except Exception as e:  # a truncated or foreign file
+            problem = problem or f"unreadable checkpoint {path}: {type(e).__name__}"
+            continue
+        if path == prev:
+            print(f"warning: {problem or f'missing checkpoint {latest}'}; resuming from {prev.name}",
+                  file=sys.stderr)
+        return state
+    raise ConfigError(problem)
 
 
 def record_start(run_dir: PathLike, info: Optional[dict] = None) -> dict:
@@ -200,14 +216,27 @@ class RunFolder:
 
     @property
     def has_checkpoint(self) -> bool:
-        return (self.path / CHECKPOINT).is_file()
+        return (self.path / CHECKPOINT).is_file() or (self.path / CHECKPOINT_PREV).is_file()
 
     def load_checkpoint(self) -> dict:
         return load_checkpoint(self.path)
 
-    def save_checkpoint(self, state: dict) -> None:
+    def save_checkpoint(self, state: dict, keep_previous: bool = True) -> None:
+        """checkpoint.pt, written atomically; the one it replaces becomes checkpoint.prev.pt (``keep_previous``)
+        or is dropped (a finished run, which nobody resumes mid-way)."""
         from .fileio import atomic_torch_save
-        atomic_torch_save(state, self.path / CHECKPOINT)
+        latest, prev = self.path / CHECKPOINT, self.path / CHECKPOINT_PREV
+        if keep_previous and latest.is_file():
+            os.replace(latest, prev)  # until the new one lands, the loader falls back to prev
+        atomic_torch_save(state, latest)
+        if not keep_previous and prev.is_file():
+            prev.unlink()
+
+    def drop_previous_checkpoint(self) -> None:
+        """A finished run keeps one checkpoint."""
+        prev = self.path / CHECKPOINT_PREV
+        if prev.is_file():
+            prev.unlink()
 
     def write_metrics(self, rows: List[dict]) -> None:
         write_metrics(self.path, rows)

@@ -54,20 +54,37 @@ def matmul_precision(precision: str):
         torch.set_float32_matmul_precision(old)
 
 
-def mlp(in_dim: int, hidden: Tuple[int, ...], out_dim: int) -> nn.Sequential:
+def linear(in_dim: int, out_dim: int, generator: Optional[torch.Generator] = None) -> nn.Linear:
+    """``nn.Linear(in_dim, out_dim)`` with its default initialisation drawn from ``generator`` (None: torch's
+    global one): the same draws, in the same order, as ``nn.Linear.reset_parameters``."""
+    layer = torch.nn.utils.skip_init(nn.Linear, in_dim, out_dim)
+    nn.init.kaiming_uniform_(layer.weight, a=math.sqrt(5), generator=generator)
+    bound = 1.0 / math.sqrt(in_dim) if in_dim > 0 else 0.0
+    nn.init.uniform_(layer.bias, -bound, bound, generator=generator)
+    return layer
+
+
+def normal(like: torch.Tensor, generator: Optional[torch.Generator]) -> torch.Tensor:
+    """Standard-normal draws of ``like``'s shape from ``generator`` (None: torch's global one)."""
+    return torch.randn(like.shape, dtype=like.dtype, device=like.device, generator=generator)
+
+
+def mlp(in_dim: int, hidden: Tuple[int, ...], out_dim: int, generator: Optional[torch.Generator] = None
+        ) -> nn.Sequential:
     layers: List[nn.Module] = []
     d = in_dim
     for h in hidden:
-        layers += [nn.Linear(d, h), nn.ReLU()]
+        layers += [linear(d, h, generator), nn.ReLU()]
         d = h
-    layers.append(nn.Linear(d, out_dim))
+    layers.append(linear(d, out_dim, generator))
     return nn.Sequential(*layers)
 
 
 class EnsembleMLP(nn.Module):
     """E independent MLPs evaluated together with batched matmuls (one kernel per layer, not E)."""
 
-    def __init__(self, n: int, in_dim: int, hidden: Tuple[int, ...], out_dim: int):
+    def __init__(self, n: int, in_dim: int, hidden: Tuple[int, ...], out_dim: int,
+                 generator: Optional[torch.Generator] = None):
         super().__init__()
         dims = [in_dim, *hidden, out_dim]
         self.n = n
@@ -75,8 +92,8 @@ class EnsembleMLP(nn.Module):
         self.biases = nn.ParameterList()
         for i, o in zip(dims[:-1], dims[1:]):
             bound = 1.0 / math.sqrt(i)  # nn.Linear's default initialisation, per member
-            self.weights.append(nn.Parameter(torch.empty(n, i, o).uniform_(-bound, bound)))
-            self.biases.append(nn.Parameter(torch.empty(n, 1, o).uniform_(-bound, bound)))
+            self.weights.append(nn.Parameter(torch.empty(n, i, o).uniform_(-bound, bound, generator=generator)))
+            self.biases.append(nn.Parameter(torch.empty(n, 1, o).uniform_(-bound, bound, generator=generator)))
 
     def forward(self, x: torch.Tensor, detach: bool = False) -> torch.Tensor:
         """x (B, in) -> (E, B, out). ``detach``: gradients reach x but not the weights."""
@@ -92,18 +109,21 @@ class EnsembleMLP(nn.Module):
 
 
 class Actor(nn.Module):
-    """Tanh-squashed Gaussian policy with actions in [-1, 1]^A."""
+    """Tanh-squashed Gaussian policy with actions in [-1, 1]^A. ``generator``: where its sampling noise comes
+    from (None: torch's global generator); ``init_generator``: its initial weights' draws."""
     log_std_range = (LOG_STD_MIN, LOG_STD_MAX)  # the clamp of log std (read by sac_fused.py too)
 
-    def __init__(self, obs_dim: int, act_dim: int, hidden: Tuple[int, ...]):
+    def __init__(self, obs_dim: int, act_dim: int, hidden: Tuple[int, ...],
+                 generator: Optional[torch.Generator] = None, init_generator: Optional[torch.Generator] = None):
         super().__init__()
-        self.net = mlp(obs_dim, hidden, 2 * act_dim)
+        self.generator = generator
+        self.net = mlp(obs_dim, hidden, 2 * act_dim, init_generator)
 
     def forward(self, obs: torch.Tensor) -> Tuple[torch.Tensor, torch.Tensor]:
         """Reparameterised sample and its log-probability (with the tanh correction)."""
         mu, log_std = self.net(obs).chunk(2, dim=-1)
         log_std = torch.clamp(log_std, LOG_STD_MIN, LOG_STD_MAX)
-        eps = torch.randn_like(mu)
+        eps = normal(mu, self.generator)
         u = mu + log_std.exp() * eps
         a = torch.tanh(u)
         # log N(u; mu, std) - sum log(1 - tanh(u)^2), the latter in a numerically stable form
@@ -115,7 +135,7 @@ class Actor(nn.Module):
         """The action of ``forward`` (same random draw, same value) without its log-probability: acting is per env step."""
         mu, log_std = self.net(obs).chunk(2, dim=-1)
         log_std = torch.clamp(log_std, LOG_STD_MIN, LOG_STD_MAX)
-        return torch.tanh(mu + log_std.exp() * torch.randn_like(mu))
+        return torch.tanh(mu + log_std.exp() * normal(mu, self.generator))
 
     def mean_action(self, obs: torch.Tensor) -> torch.Tensor:
         mu, _ = self.net(obs).chunk(2, dim=-1)
@@ -123,20 +143,28 @@ class Actor(nn.Module):
 
 
 class SAC(nn.Module):
-    def __init__(self, obs_dim: int, act_dim: int, cfg: SACConfig, device: str = "cpu"):
+    """The agent. ``generator`` (on ``device``): the random stream of its actions and updates;
+    ``init_generator`` (CPU): its initial weights' (the networks are built on the CPU). None: torch's global
+    generator. A training run passes its own (train.Trainer), so its numbers never depend on other runs."""
+
+    def __init__(self, obs_dim: int, act_dim: int, cfg: SACConfig, device: str = "cpu",
+                 generator: Optional[torch.Generator] = None, init_generator: Optional[torch.Generator] = None):
         super().__init__()
         self.cfg = cfg
         self.obs_dim, self.act_dim = obs_dim, act_dim
         self.paper = cfg.variant == "paper"
-        self.actor = Actor(obs_dim, act_dim, cfg.hidden)
-        self.q = EnsembleMLP(2, obs_dim + act_dim, cfg.hidden, 1)
+        self.generator = generator
+        g = init_generator
+        self.actor = Actor(obs_dim, act_dim, cfg.hidden, generator=generator, init_generator=g)
+        self.q = EnsembleMLP(2, obs_dim + act_dim, cfg.hidden, 1, g)
+        # every network draws its initial weights, targets too (then overwritten): the stream's order
         if self.paper:
-            self.v = mlp(obs_dim, cfg.hidden, 1)
-            self.v_target = mlp(obs_dim, cfg.hidden, 1)
+            self.v = mlp(obs_dim, cfg.hidden, 1, g)
+            self.v_target = mlp(obs_dim, cfg.hidden, 1, g)
             self.v_target.load_state_dict(self.v.state_dict())
             self._online, self._target = self.v, self.v_target
         else:
-            self.q_target = EnsembleMLP(2, obs_dim + act_dim, cfg.hidden, 1)
+            self.q_target = EnsembleMLP(2, obs_dim + act_dim, cfg.hidden, 1, g)
             self.q_target.load_state_dict(self.q.state_dict())
             self._online, self._target = self.q, self.q_target
         self._target.requires_grad_(False)

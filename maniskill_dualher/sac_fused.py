@@ -205,27 +205,24 @@ class FusedUpdate:
         # per agent, which of its parameters a critic-only batch leaves without a step (actor, log alpha)
         self.policy_ids = [{id(p) for p in s.policy_parameters()} for s in self.sacs]
         self.compute = self._compute
-        if sac.cfg.compile:
-            import torch._inductor.config as inductor_config
-            inductor_config.fallback_random = True  # the same random draws as eager (and as autograd's path)
+        if sac.cfg.compile:  # compute draws nothing (``draws`` are made outside it): nothing random to compile
             self.compute = torch.compile(self._compute, dynamic=False)
 
     def draw_shapes(self, n_critic: int, n_pi: int, act_dim: int, separate: bool) -> List[Tuple[int, int]]:
         """The standard-normal draws of one update, in the order one agent's update makes them (a pack draws
-        them per agent from that agent's own stream and passes them to ``compute``). ``separate``: the actor
-        has its own batch."""
+        them per agent from that agent's own generator and passes them to ``compute``). ``separate``: the
+        actor has its own batch."""
         shapes = [(n_pi, act_dim)]                      # the policy at s (actor loss)
         if not self.sac.paper or separate:              # a' at s' (critic target), or V's target's fresh action
             shapes.append((n_critic, act_dim))
         return shapes
 
-    def policy(self, obs: torch.Tensor, keep: bool, eps: Optional[torch.Tensor] = None):
+    def policy(self, obs: torch.Tensor, keep: bool, eps: torch.Tensor):
         """The actor's reparameterised sample (as ``Actor.forward``, same random draw) and what its backward
-        needs; ``eps``: the draw, made by the caller (a pack), or None to draw it here."""
+        needs; ``eps``: the standard-normal draw (``draws``)."""
         out, inputs = self.actor.forward(obs)
         mu, raw_log_std = out.chunk(2, dim=-1)
         log_std = torch.clamp(raw_log_std, *self.log_std_range)
-        eps = torch.randn_like(mu) if eps is None else eps
         std = log_std.exp()
         u = mu + std * eps
         a = torch.tanh(u)
@@ -247,14 +244,14 @@ class FusedUpdate:
         """(S * 2, B, 1) critic outputs -> min over each agent's two critics: (values (S, B), member (S, B))."""
         return q.view(-1, self.q.per_agent, q.shape[1]).min(1)
 
-    def _compute(self, obs, act, rew, next_obs, done, w, pi_obs, log_alpha, eps=None):
+    def _compute(self, obs, act, rew, next_obs, done, w, pi_obs, log_alpha, eps):
         """-> (gradients of self.params stacked over the pack, |TD| summed over critics (S, B), the loss terms
         (S,) for the logs). ``pi_obs``: the actor's own batch, or None for the critic batch; ``eps``: the
         update's standard-normal draws (``draw_shapes``), stacked over the pack, or None to draw them here."""
         sac, cfg = self.sac, self.sac.cfg
         for net in self.nets:
             net.refresh()
-        draws = iter(eps) if eps is not None else iter(())
+        draws = iter(eps)
         alpha = log_alpha.exp().unsqueeze(-1)  # (S, 1)
         n_critic, d_obs = obs.shape[1:]
         grads: List[torch.Tensor] = []
@@ -263,7 +260,7 @@ class FusedUpdate:
 
         # --- policy at s, and the critics there (their weights are constants in the actor loss)
         n_pi = pi_obs.shape[1]
-        a_pi, logp_pi, saved_pi = self.policy(pi_obs, keep=True, eps=next(draws, None))
+        a_pi, logp_pi, saved_pi = self.policy(pi_obs, keep=True, eps=next(draws))
         q_pi_all, q_pi_inputs = self.q.forward(torch.cat([pi_obs, a_pi], -1))
         q_pi, q_pi_arg = self._min_critic(q_pi_all)
         actor_w = w if (w is not None and not separate_actor_batch and not cfg.is_weights_critic_only) else None
@@ -272,7 +269,7 @@ class FusedUpdate:
         if sac.paper:
             next_v = self.v_target.forward(next_obs)[0].squeeze(-1)
         else:
-            a_next, logp_next, _ = self.policy(next_obs, keep=False, eps=next(draws, None))
+            a_next, logp_next, _ = self.policy(next_obs, keep=False, eps=next(draws))
             q_next = self._min_critic(self.q_target.forward(torch.cat([next_obs, a_next], -1))[0]).values
             next_v = q_next - alpha * logp_next
         y = rew + cfg.gamma * (1.0 - done) * next_v
@@ -304,7 +301,7 @@ class FusedUpdate:
         if sac.paper:  # V(s) <- min_e Q_e(s, a~pi) - alpha log pi (Eq. 4)
             v_target = q_pi - alpha * logp_pi
             if separate_actor_batch:  # V trains on the critic batch; a fresh action there
-                a2, lp2, _ = self.policy(obs, keep=False, eps=next(draws, None))
+                a2, lp2, _ = self.policy(obs, keep=False, eps=next(draws))
                 v_target = self._min_critic(self.q.forward(torch.cat([obs, a2], -1))[0]).values - alpha * lp2
             v_pred, v_inputs = self.v.forward(obs)
             v_err = v_pred.squeeze(-1) - v_target
@@ -330,35 +327,38 @@ class FusedUpdate:
         torch._foreach_lerp_(sac._target_params, sac._online_params, sac.cfg.tau)
         sac._n_updates += 1
 
+    def draw(self, i: int, shapes: List[Tuple[int, int]]) -> List[torch.Tensor]:
+        """Agent i's standard-normal draws of these shapes, from its own generator (``SAC.generator``)."""
+        sac = self.sacs[i]
+        return [torch.randn(s, generator=sac.generator, device=sac.device) for s in shapes]
+
+    def draws(self, n_critic: int, n_pi: int, separate: bool) -> List[torch.Tensor]:
+        """Every agent's draws for one update, stacked over the pack: (S, n, act_dim) per shape. Made here,
+        outside ``compute``, so a compiled ``compute`` draws nothing (the same numbers as drawing inside)."""
+        shapes = self.draw_shapes(n_critic, n_pi, self.sac.act_dim, separate)
+        per_agent = [self.draw(i, shapes) for i in range(len(self.sacs))]
+        return [torch.stack([d[j] for d in per_agent]) for j in range(len(shapes))]
+
     @torch.no_grad()
     def __call__(self, batch: "Batch", actor_batch: Optional["Batch"],
                  want_logs: bool) -> Tuple[np.ndarray, Dict[str, float]]:
-        sac = self.sac
-        pi_obs = None if actor_batch is None else actor_batch.obs.unsqueeze(0)
-        w = None if batch.weights is None else batch.weights.unsqueeze(0)
-        grads, td_abs, terms = self.compute(batch.obs.unsqueeze(0), batch.action.unsqueeze(0),
-                                            batch.reward.unsqueeze(0), batch.next_obs.unsqueeze(0),
-                                            batch.done.unsqueeze(0), w, pi_obs, sac.log_alpha.detach().view(1))
-        self._step(0, grads, batch.critic_only)
-        logs = {k: float(v[0]) for k, v in terms.items()} if want_logs else {}
-        return td_abs[0].cpu().numpy(), logs
+        """One agent's update (a pack of one)."""
+        tds, logs = self.step_pack([batch], [actor_batch], want_logs)
+        return tds[0], logs[0]
 
     @torch.no_grad()
-    def step_pack(self, batches: List["Batch"], actor_batches: List[Optional["Batch"]], draw
+    def step_pack(self, batches: List["Batch"], actor_batches: List[Optional["Batch"]], want_logs: bool = True
                   ) -> Tuple[List[np.ndarray], List[Dict[str, float]]]:
-        """One update of every agent of the pack, agent i on ``batches[i]``. ``draw(i, shapes)`` returns agent
-        i's standard-normal draws of these shapes from its own random stream (a run's draws do not depend on
-        its pack). -> (|TD| per agent, loss terms per agent)."""
-        sac = self.sac
+        """One update of every agent of the pack, agent i on ``batches[i]`` with draws from its own generator
+        (a run's draws do not depend on its pack). -> (|TD| per agent, loss terms per agent ({} unless
+        ``want_logs``: reading them syncs the device))."""
         stack = lambda name, bs: torch.stack([getattr(b, name) for b in bs])  # noqa: E731
         separate = actor_batches[0] is not None
         pi_obs = stack("obs", actor_batches) if separate else None
         w = None if batches[0].weights is None else stack("weights", batches)
         obs = stack("obs", batches)
         n_pi = obs.shape[1] if pi_obs is None else pi_obs.shape[1]
-        shapes = self.draw_shapes(obs.shape[1], n_pi, sac.act_dim, separate)
-        per_agent = [draw(i, shapes) for i in range(len(self.sacs))]
-        eps = [torch.stack([d[j] for d in per_agent]) for j in range(len(shapes))]
+        eps = self.draws(obs.shape[1], n_pi, separate)
         log_alpha = torch.stack([s.log_alpha.detach() for s in self.sacs])
         grads, td_abs, terms = self.compute(obs, stack("action", batches), stack("reward", batches),
                                             stack("next_obs", batches), stack("done", batches), w, pi_obs,
@@ -366,5 +366,6 @@ class FusedUpdate:
         for i in range(len(self.sacs)):
             self._step(i, grads, batches[i].critic_only)
         td = td_abs.cpu().numpy()
-        return [td[i] for i in range(len(self.sacs))], [{k: float(v[i]) for k, v in terms.items()}
-                                                         for i in range(len(self.sacs))]
+        n = len(self.sacs)
+        logs = [{k: float(v[i]) for k, v in terms.items()} if want_logs else {} for i in range(n)]
+        return [td[i] for i in range(n)], logs

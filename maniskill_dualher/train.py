@@ -1,14 +1,21 @@
-"""One run: act -> step -> store -> update when due -> evaluate / log / checkpoint between episodes.
+"""Training: one driver (``train_runs``) steps a list of runs; a run alone is a pack of one.
 
     python -m maniskill_dualher.train --env ReachTarget-v1 --method dual_buffer --seed 0 --steps 30000 --out runs/x
 
+``train_runs`` reads top to bottom as the whole loop: every run acts, steps and stores one env step; the
+updates that are due are made (batched across runs with equal networks and settings, ``pack.Updater``: that
+is the only thing packing changes); every run evaluates, checkpoints, pauses or finishes between episodes.
+A run (``Trainer``) is plain state with ``step()``, ``sample()``/``learn()`` around its update and
+``after_step()``; it owns its env, replay, optimizer, counters, folder and its ``torch.Generator``, so its
+metrics and weights do not depend on which runs share its process (``tests/test_pack.py``).
+
 A run folder is the unit of truth: ``config.json``, ``metrics.csv`` (one row per evaluation),
 TensorBoard events (``losses/*`` every ``log_every`` updates, ``charts/*`` and ``replay/*``),
-``checkpoint.pt`` and, once finished, ``done.json`` (``rundir.RunFolder`` keeps them). Running again on the
-same folder resumes from the checkpoint; because every training episode is reset with its own seed and
-checkpoints are taken between episodes together with all random-number state and the counters
-(``counters.Counters``), a resumed run produces the same metrics as an uninterrupted one (CPU simulation,
-one env).
+``checkpoint.pt`` (and ``checkpoint.prev.pt`` while unfinished) and, once finished, ``done.json``
+(``rundir.RunFolder`` keeps them). Running again on the same folder resumes from the checkpoint; because
+every training episode is reset with its own seed and checkpoints are taken between episodes together with
+all random-number state and the counters (``counters.Counters``), a resumed run produces the same metrics
+as an uninterrupted one (CPU simulation, one env).
 
 Episodes end on success when ``terminate_on_success`` (the paper, section 4.1) or at ``max_episode_steps``;
 with N parallel envs each env's episode ends on its own and goes to replay (with its hindsight goals) as soon
@@ -17,12 +24,13 @@ as it ends (``episodes.EnvEpisodes``: each env's clock and the episode arrays). 
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import sys
 import time
 from pathlib import Path
-from typing import List, Optional
+from typing import Callable, List, Optional, Sequence
 
 import numpy as np
 import torch
@@ -31,6 +39,7 @@ from .config import ConfigError, RunConfig
 from .counters import Counters
 from .envs import EVAL_SEED_BASE, BatchEnv, make_env, train_episode_seed
 from .episodes import EnvEpisodes
+from .pack import Updater
 from .policy import save_policy
 from .replay.base import Episode
 from .rundir import POLICY, POLICY_BEST, RunFolder, load_checkpoint
@@ -38,6 +47,9 @@ from .sac import SAC
 
 DEMO_SEED_BASE = 2_000_000_000
 
+# progress(out_dir, env_steps, total_steps), called after every env step (the sweep's progress.json writer,
+# experiment/backends.py: ProgressFile)
+Progress = Callable[[Path, int, int], None]
 
 class Diagnostics:
     """The learner's state on the batches it trained on, per batch source (R or E; R for single-buffer
@@ -80,36 +92,178 @@ class Diagnostics:
             self.rows, self._win = list(state["rows"]), dict(state["window"])
 
 
+
+class TrainingDiverged(RuntimeError):
+    """A loss or weight became NaN/inf: the run stops with one line, its last checkpoint intact."""
+
+
+@dataclasses.dataclass
+class Job:
+    """One run: what ``train_runs`` takes per run (a chain stage: its parent folder and replay flags)."""
+    cfg: RunConfig
+    out: str
+    init_from: Optional[str] = None
+    carry_replay: bool = False
+    keep_replay: bool = False
+
+
+# --------------------------------------------------------------------------- the loop
+def drive(runs: Sequence["Trainer"], stop_at: Optional[int] = None, close_finished: bool = True) -> List[dict]:
+    """The training loop, for any number of runs side by side (a run alone is a pack of one). -> per run
+    ``{"row": final metrics}``, ``{"row": None}`` (paused at ``stop_at``: checkpointed) or ``{"error": e}``.
+    A run that fails is written off alone (its traceback in its folder's ``error.txt``); the others go on.
+    ``close_finished``: a finished run's env closes at once (a pack's memory); False keeps it for the caller."""
+    results: List[Optional[dict]] = [None] * len(runs)
+    live = list(runs)
+    for k, run in enumerate(runs):
+        run.k = k
+        _guard(run, results, live, run.start)              # logs, demonstrations, the step-0 evaluation
+        _settle(run, results, live, close_finished)
+    updater = Updater()
+    while live:
+        for run in list(live):                                                 # act, step, store
+            _guard(run, results, live, run.step)
+        for j in range(max((run.due for run in live), default=0)):             # update when due
+            updater.round([run for run in live if run.due > j], lambda run, e: _fail(run, e, results, live))
+        for run in list(live):                                                 # evaluate, checkpoint, stop
+            _guard(run, results, live, lambda: run.after_step(stop_at))
+            _settle(run, results, live, close_finished)
+    return results
+
+
+def _settle(run: "Trainer", results: List[Optional[dict]], live: List["Trainer"], close_finished: bool) -> None:
+    """A run that paused or finished leaves the loop with its row (None: paused)."""
+    if run.state != "running" and run in live:
+        results[run.k] = {"row": run.final_row}
+        live.remove(run)
+        if run.state == "finished" and close_finished:
+            run.close()
+
+
+def _guard(run: "Trainer", results: List[Optional[dict]], live: List["Trainer"], fn) -> None:
+    """fn(); an exception fails this run alone."""
+    try:
+        fn()
+    except Exception as e:
+        _fail(run, e, results, live)
+
+
+def _fail(run: "Trainer", e: Exception, results: List[Optional[dict]], live: List["Trainer"]) -> None:
+    run.folder.write_error()  # the traceback of the exception being handled
+    results[run.k] = {"error": e}
+    if run in live:
+        live.remove(run)
+    run.close()
+
+
+def run_one(run: "Trainer", stop_at: Optional[int] = None) -> Optional[dict]:
+    """``drive`` of one run the caller built and keeps (tests, benches): its final row (None: paused); raises
+    what stopped it. Its env stays open."""
+    res = drive([run], stop_at, close_finished=False)[0]
+    if "error" in res:
+        raise res["error"]
+    return res["row"]
+
+
+def train_runs(jobs: Sequence[Job], stop_at: Optional[int] = None, progress: Optional[Progress] = None,
+               show_progress: bool = False) -> List[dict]:
+    """Train (or resume, or return the result of) every job in this process: each job's run opened, then
+    ``drive``. -> per job as ``drive``; a refused config (ConfigError before the run exists) writes nothing
+    into a folder that may hold another run. A kill or interrupt leaves every run's last checkpoint standing."""
+    results: List[Optional[dict]] = [None] * len(jobs)
+    runs: List[Trainer] = []
+    jobs = [Job(**j) if isinstance(j, dict) else j for j in jobs]  # the sweep's workers pass plain dicts
+    try:
+        for k, job in enumerate(jobs):
+            folder = RunFolder(job.out)
+            if folder.done:
+                results[k] = {"row": folder.final()}
+                continue
+            try:
+                runs.append(Trainer(job.cfg, job.out, init_from=job.init_from, carry_replay=job.carry_replay,
+                                    keep_replay=job.keep_replay, progress=progress, show_progress=show_progress))
+            except Exception as e:
+                if not isinstance(e, ConfigError):
+                    folder.write_error()
+                results[k] = {"error": e}
+        todo = [k for k, r in enumerate(results) if r is None]
+        for k, r in zip(todo, drive(runs, stop_at)):
+            results[k] = r
+    finally:
+        for run in runs:
+            run.close()
+    return results
+
+
+def run_training(cfg: RunConfig, out_dir, init_from=None, carry_replay: bool = False,
+                 show_progress: bool = True, stop_at: Optional[int] = None, keep_replay: bool = False,
+                 progress: Optional[Progress] = None) -> Optional[dict]:
+    """One run: ``train_runs`` of one job. Returns its final metrics row (None if ``stop_at`` paused it);
+    raises what stopped it."""
+    job = Job(cfg, str(out_dir), None if init_from is None else str(init_from), carry_replay, keep_replay)
+    res = train_runs([job], stop_at=stop_at, progress=progress, show_progress=show_progress)[0]
+    if "error" in res:
+        raise res["error"]
+    return res["row"]
+
+
+def train_chain(stages: List[RunConfig], out_dir, carry_replay: bool = True,
+                show_progress: bool = True) -> List[dict]:
+    """A transfer chain (``experiment/protocol.py``) in ``out_dir``, stage by stage; finished stages are
+    skipped, an interrupted one resumes. Returns each stage's final metrics row."""
+    from .experiment import protocol
+
+    protocol.validate_chain(stages)
+    rows = []
+    for i in range(len(stages)):
+        job = protocol.stage_job(stages, i, out_dir, carry_replay)
+        rows.append(run_training(job.pop("cfg"), job.pop("out"), show_progress=show_progress, **job))
+    return rows
+
+
+# --------------------------------------------------------------------------- one run
 class Trainer:
-    # called as progress_hook(out_dir, env_steps, total_steps) after every env step when set (a callable
-    # object, or a staticmethod): the sweep's progress file, experiment/backends.py: ProgressFile
-    progress_hook = None
+    """One run's state and its steps (``train_runs`` drives them): ``start``; per env step ``step`` (act, step,
+    store; sets ``due``), ``due`` times ``sample`` -> the update -> ``learn``, and ``after_step`` (between
+    episodes: evaluate, checkpoint, pause or finish; sets ``state`` and ``final_row``); ``close``."""
 
     def __init__(self, cfg: RunConfig, out_dir, init_from=None, carry_replay: bool = False,
-                 show_progress: bool = True, keep_replay: bool = False):
+                 show_progress: bool = True, keep_replay: bool = False, progress: Optional[Progress] = None):
         from .methods import make_method  # late: methods import replay pieces
 
         self.cfg = cfg.validate()
         self.folder = RunFolder(out_dir)
         self.out = self.folder.path
         self.show_progress = show_progress
+        self.progress = progress
         self.keep_replay = keep_replay  # a finished run keeps its replay only if a later stage reads it
         self.folder.check_identity(cfg.to_json())
         init_state = load_checkpoint(Path(init_from)) if init_from is not None else None
 
         torch.set_num_threads(cfg.torch_threads)
-        torch.manual_seed(cfg.seed)
+        # this run's torch random stream (network init, exploration, the update's draws): seeded as
+        # torch.manual_seed(seed) seeds the global one, so the numbers are those of a run on the global stream
+        self.gen = torch.Generator().manual_seed(cfg.seed)
+        self.device_gen = self.gen if torch.device(cfg.device).type == "cpu" else \
+            torch.Generator(device=cfg.device).manual_seed(cfg.seed)
         self.rng = np.random.default_rng(cfg.seed)
         self.env: BatchEnv = make_env(cfg)
         self.spec = self.env.spec
         self.method = make_method(cfg, self.spec, np.random.default_rng([cfg.seed, 1]), device=cfg.device)
-        self.agent = SAC(self.spec.input_dim, self.spec.act_dim, cfg.sac, device=cfg.device)
+        self.agent = SAC(self.spec.input_dim, self.spec.act_dim, cfg.sac, device=cfg.device,
+                         init_generator=self.gen, generator=self.device_gen)
         self.train_eps = EnvEpisodes(self.env, cfg.terminate_on_success)
         self.eval_eps = EnvEpisodes(self.env, cfg.terminate_on_success)  # its own clock and arrays
         self.count = Counters()
         self.rows: List[dict] = []  # metrics.csv: one per evaluation
         self.diag = Diagnostics()   # diagnostics.csv: the learner's logs per batch source (R or E)
         self.resumed = False
+        self.k = 0                  # its index among the driver's jobs
+        self.ended = np.zeros(self.spec.num_envs, dtype=bool)  # which envs' episodes ended this step
+        self.due = 0                # updates due this step
+        self.state = "running"      # then "paused" (at stop_at) or "finished"
+        self.final_row: Optional[dict] = None
+        self.tb = self.bar = None
         if self.folder.has_checkpoint:
             self._restore(self.folder.load_checkpoint())
             self.resumed = True
@@ -117,7 +271,7 @@ class Trainer:
             self._init_from(init_state, carry_replay)
         self.folder.record_start(cfg.to_json(), init_from, carry_replay)
 
-    # counters by name, for callers that read a trainer (policy files, benches)
+    # counters by name, for callers that read a trainer (benches)
     env_steps = property(lambda self: self.count.env_steps)
     updates = property(lambda self: self.count.updates)
     episodes = property(lambda self: self.count.episodes)
@@ -139,10 +293,13 @@ class Trainer:
 
     # ------------------------------------------------------------ checkpoint
     def _state(self) -> dict:
-        return {"config": self.cfg.to_dict(), "agent": self.agent.full_state(), "method": self.method.state_dict(),
-                "counters": self.count.state_dict(), "rows": self.rows, "diag": self.diag.state_dict(),
-                "rng": self.rng.bit_generator.state,
-                "torch_rng": torch.get_rng_state()}
+        state = {"config": self.cfg.to_dict(), "agent": self.agent.full_state(), "method": self.method.state_dict(),
+                 "counters": self.count.state_dict(), "rows": self.rows, "diag": self.diag.state_dict(),
+                 "rng": self.rng.bit_generator.state,
+                 "torch_rng": self.gen.get_state()}
+        if self.device_gen is not self.gen:
+            state["torch_rng_device"] = self.device_gen.get_state()
+        return state
 
     def _restore(self, state: dict) -> None:
         self.agent.load_full_state(state["agent"])
@@ -151,42 +308,21 @@ class Trainer:
         self.rows = list(state["rows"])
         self.diag.load_state_dict(state.get("diag"))
         self.rng.bit_generator.state = state["rng"]
-        torch.set_rng_state(state["torch_rng"])
+        self.gen.set_state(state["torch_rng"])
+        if self.device_gen is not self.gen and "torch_rng_device" in state:
+            self.device_gen.set_state(state["torch_rng_device"])
 
     def save_checkpoint(self, replay: bool = True) -> None:
         """Write the checkpoint; ``replay=False`` leaves the replay buffers out (a finished run nobody resumes)."""
         state = self._state()
         if not replay:
             state["method"] = None
-        self.folder.save_checkpoint(state)
+        self.folder.save_checkpoint(state, keep_previous=replay)
 
-    # ------------------------------------------------------------ the loop
-    def run(self, stop_at: Optional[int] = None) -> Optional[dict]:
-        """Train to ``cfg.total_steps``; with ``stop_at``, checkpoint and return None once that many
-        env steps are done (a time-sliced job; resuming continues the same experiment).
-
-        Each of the N envs' episodes ends on its own and that env is reset before the next step.
-        Evaluations and checkpoints happen between episodes; with N > 1 envs the episodes still in
-        flight then are cut (stored as time-limit truncations), so a checkpoint never holds half an episode.
-        """
-        cfg, c = self.cfg, self.count
-        if self.folder.done:
-            return self.folder.final()
-        self.start()
-        try:
-            while c.env_steps < cfg.total_steps:
-                ended = self.collect_step()                                       # act, step, store
-                for _ in range(self.updates_due(ended)):                          # update when due
-                    self._update()
-                if self.between_episodes(ended, stop_at):                         # evaluate, checkpoint
-                    return None  # paused at stop_at: checkpointed
-        finally:
-            self.close_logs()
-        return self.finish()
-
-    # ------------------------------------------------------------ loop pieces (a pack calls them too: pack.py)
+    # ------------------------------------------------------------ the steps train_runs drives
     def start(self) -> None:
-        """Logs open; a fresh run's demonstrations and step-0 evaluation; every env starts a fresh episode."""
+        """Logs open; a fresh run's demonstrations and step-0 evaluation; every env starts a fresh episode.
+        A run whose budget is already spent (killed between its last checkpoint and done.json) finishes."""
         c = self.count
         self._open_logs()
         if not self.resumed and c.env_steps == 0:
@@ -195,28 +331,93 @@ class Trainer:
                 self._eval_row()
         self._t0 = time.perf_counter() - c.wall_time
         self.train_eps.restart()  # also after a resume
+        if c.env_steps >= self.cfg.total_steps:
+            self._close_logs()
+            self.final_row, self.state = self.finish(), "finished"
 
-    def collect_step(self) -> np.ndarray:
-        """One step of every env: act, step, count, store the episodes that ended. -> which envs' episodes ended."""
+    def step(self) -> None:
+        """One step of every env: act, step, count, store the episodes that ended; how many updates are due."""
         eps = self.train_eps
         self._begin_episodes()
         action = self._explore(self.env.policy_input(eps.flat))
-        ended = eps.step(action)
+        self.ended = eps.step(action)
         self._count_steps(eps.n_envs)
-        for ep in eps.finished(ended):
+        for ep in eps.finished(self.ended):
             self._store(ep)
-        return ended
+        self.due = self._updates_due(eps.n_envs, int(self.ended.sum()))
 
-    def updates_due(self, ended: np.ndarray) -> int:
-        return self._updates_due(self.train_eps.n_envs, int(ended.sum()))
+    def sample(self):
+        """The next update's batches -> (batch, actor batch or None, whether this update logs)."""
+        s = self.cfg.sac
+        batch = self.method.sample(s.batch_size)
+        actor_batch = self.method.sample_uniform(s.batch_size) if s.actor_uniform_batch else None
+        return batch, actor_batch, self.count.updates % s.log_every == 0
 
-    def between_episodes(self, ended: np.ndarray, stop_at: Optional[int]) -> bool:
-        """After a step: evaluate / checkpoint / pause when an episode ended or the budget is spent; True if
-        the run pauses here (``stop_at``)."""
-        finished = self.count.env_steps >= self.cfg.total_steps
-        return bool((ended.any() or finished) and self._between_episodes(finished, stop_at, self._t0))
+    def learn(self, batch, td_abs: np.ndarray, logs: dict, log_now: bool) -> None:
+        """What follows the agent's update: priorities, the count, the logs (a diverged loss stops the run)."""
+        c = self.count
+        self.method.update_priorities(batch, td_abs)
+        c.updates += 1
+        self.diag.add(batch, td_abs, logs if log_now else None)
+        if log_now:
+            bad = [k for k, v in logs.items() if not math.isfinite(v)]
+            if bad:
+                raise TrainingDiverged(f"{bad[0]} became {logs[bad[0]]} at update {c.updates} "
+                                       f"(env step {c.env_steps}); the last good checkpoint is kept in {self.out}")
+            for k, v in logs.items():
+                self.tb.add_scalar(k, v, c.env_steps)
+            for k, v in self.method.stats().items():
+                self.tb.add_scalar(f"replay/{k}", v, c.env_steps)
 
-    # ------------------------------------------------------------ loop pieces
+    def after_step(self, stop_at: Optional[int]) -> None:
+        """Between episodes (an episode ended, or the budget is spent): evaluate and checkpoint when due; pause
+        at ``stop_at`` or finish (``state``; ``final_row``)."""
+        c = self.count
+        finished = c.env_steps >= self.cfg.total_steps
+        if not (self.ended.any() or finished):
+            return
+        stopping = stop_at is not None and c.env_steps >= stop_at and not finished
+        eval_due = c.env_steps >= self._next_eval or finished
+        ckpt_due = c.env_steps >= self._next_ckpt or finished or stopping
+        if eval_due or ckpt_due:
+            for ep in self.train_eps.cut_in_flight():
+                self._store(ep)
+        if eval_due:
+            c.wall_time = time.perf_counter() - self._t0
+            row = self._eval_row()
+            self.bar.set_postfix(success=f"{row['eval_success_rate']:.2f}", ret=f"{row['eval_return']:.1f}")
+            self._next_eval = self._next(self.cfg.eval_every)
+        if ckpt_due:
+            c.wall_time = time.perf_counter() - self._t0
+            self._check_finite()
+            self.save_checkpoint()
+            self._next_ckpt = self._next(self.cfg.checkpoint_every)
+        if stopping:
+            self._close_logs()
+            self.state = "paused"
+        elif finished:
+            self._close_logs()
+            self.final_row, self.state = self.finish(), "finished"
+
+    def finish(self) -> dict:
+        final = dict(self.rows[-1])
+        self.folder.finish(final, demo_env_steps=self.count.demo_env_steps)
+        if not self.keep_replay:  # after done.json: a kill before it still leaves a resumable checkpoint
+            self.save_checkpoint(replay=False)
+        else:
+            self.folder.drop_previous_checkpoint()
+        return final
+
+    def close(self) -> None:
+        """Logs and env closed (idempotent; a failed or interrupted run's checkpoint stands)."""
+        for close in (self._close_logs, self.env.close):
+            try:
+                close()
+            except Exception:
+                pass
+        self.env.close = lambda: None  # once
+
+    # ------------------------------------------------------------ pieces of the steps
     def _open_logs(self) -> None:
         from torch.utils.tensorboard import SummaryWriter
         from tqdm import tqdm
@@ -230,9 +431,12 @@ class Trainer:
         self._next_eval = self._next(cfg.eval_every)
         self._next_ckpt = self._next(cfg.checkpoint_every)
 
-    def close_logs(self) -> None:
-        self.bar.close()
-        self.tb.close()
+    def _close_logs(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+        if self.tb is not None:
+            self.tb.close()
+        self.tb = self.bar = None
 
     def _next(self, every: int) -> int:
         return (self.count.env_steps // every + 1) * every
@@ -248,36 +452,8 @@ class Trainer:
     def _count_steps(self, n: int) -> None:
         self.count.env_steps += n
         self.bar.update(n)
-        if self.progress_hook is not None:
-            self.progress_hook(self.out, self.count.env_steps, self.cfg.total_steps)
-
-    def _between_episodes(self, finished: bool, stop_at: Optional[int], t0: float) -> bool:
-        """Evaluate, checkpoint and stop when due; True if the run pauses here (``stop_at``)."""
-        c = self.count
-        stopping = stop_at is not None and c.env_steps >= stop_at and not finished
-        eval_due = c.env_steps >= self._next_eval or finished
-        ckpt_due = c.env_steps >= self._next_ckpt or finished or stopping
-        if eval_due or ckpt_due:
-            for ep in self.train_eps.cut_in_flight():
-                self._store(ep)
-        if eval_due:
-            c.wall_time = time.perf_counter() - t0
-            row = self._eval_row()
-            self.bar.set_postfix(success=f"{row['eval_success_rate']:.2f}", ret=f"{row['eval_return']:.1f}")
-            self._next_eval = self._next(self.cfg.eval_every)
-        if ckpt_due:
-            c.wall_time = time.perf_counter() - t0
-            self._check_finite()
-            self.save_checkpoint()
-            self._next_ckpt = self._next(self.cfg.checkpoint_every)
-        return stopping
-
-    def finish(self) -> dict:
-        final = dict(self.rows[-1])
-        self.folder.finish(final, demo_env_steps=self.count.demo_env_steps)
-        if not self.keep_replay:  # after done.json: a kill before it still leaves a resumable checkpoint
-            self.save_checkpoint(replay=False)
-        return final
+        if self.progress is not None:
+            self.progress(self.out, self.count.env_steps, self.cfg.total_steps)
 
     def _explore(self, x: np.ndarray) -> np.ndarray:
         if self.count.env_steps < self.cfg.sac.random_steps:
@@ -302,34 +478,6 @@ class Trainer:
         due = int(c.update_credit)
         c.update_credit -= due
         return due
-
-    def _update(self) -> None:
-        batch, actor_batch, log_now = self.sample()
-        td_abs, logs = self.agent.update(batch, actor_batch, want_logs=log_now)
-        self.apply_update(batch, td_abs, logs, log_now)
-
-    def sample(self):
-        """The next update's batches -> (batch, actor batch or None, whether this update logs)."""
-        s = self.cfg.sac
-        batch = self.method.sample(s.batch_size)
-        actor_batch = self.method.sample_uniform(s.batch_size) if s.actor_uniform_batch else None
-        return batch, actor_batch, self.count.updates % s.log_every == 0
-
-    def apply_update(self, batch, td_abs: np.ndarray, logs: dict, log_now: bool) -> None:
-        """What follows the agent's update: priorities, the count, the logs (a diverged loss stops the run)."""
-        c = self.count
-        self.method.update_priorities(batch, td_abs)
-        c.updates += 1
-        self.diag.add(batch, td_abs, logs if log_now else None)
-        if log_now:
-            bad = [k for k, v in logs.items() if not math.isfinite(v)]
-            if bad:
-                raise TrainingDiverged(f"{bad[0]} became {logs[bad[0]]} at update {c.updates} "
-                                       f"(env step {c.env_steps}); the last good checkpoint is kept in {self.out}")
-            for k, v in logs.items():
-                self.tb.add_scalar(k, v, c.env_steps)
-            for k, v in self.method.stats().items():
-                self.tb.add_scalar(f"replay/{k}", v, c.env_steps)
 
     def _check_finite(self) -> None:
         for name, p in self.agent.named_parameters():
@@ -407,14 +555,13 @@ class Trainer:
 
     def _save_policies(self, success: float) -> None:
         """policy.pt at every evaluation; policy_best.pt when it beats every earlier one (a tie keeps the earlier)."""
-        save_policy(self, self.out / POLICY, eval_success=success)
+        control_mode = getattr(getattr(self.env, "unwrapped", None), "control_mode", None)
+        policy = dict(spec=self.spec, cfg=self.cfg, env_steps=self.count.env_steps, eval_success=success,
+                      control_mode=control_mode)
+        save_policy(self.agent, self.out / POLICY, **policy)
         if success > self.count.best_eval_success:
             self.count.best_eval_success = float(success)
-            save_policy(self, self.out / POLICY_BEST, eval_success=success)
-
-
-class TrainingDiverged(ConfigError):
-    """A loss or weight became NaN/inf: the run stops with one line, its last checkpoint intact."""
+            save_policy(self.agent, self.out / POLICY_BEST, **policy)
 
 
 def _solver_action(solver, env: BatchEnv) -> np.ndarray:
@@ -425,30 +572,6 @@ def _solver_action(solver, env: BatchEnv) -> np.ndarray:
     return 2.0 * (a - env.low) / np.maximum(env.high - env.low, 1e-8) - 1.0
 
 
-
-
-def run_training(cfg: RunConfig, out_dir, init_from=None, carry_replay: bool = False,
-                 show_progress: bool = True, stop_at: Optional[int] = None,
-                 keep_replay: bool = False) -> Optional[dict]:
-    """Train (or resume, or return the result of) one run in ``out_dir``; returns the final metrics row
-    (None if ``stop_at`` paused it early)."""
-    folder = RunFolder(out_dir)
-    if folder.done:
-        return folder.final()
-    trainer = None
-    try:
-        trainer = Trainer(cfg, out_dir, init_from=init_from, carry_replay=carry_replay,
-                          show_progress=show_progress, keep_replay=keep_replay)
-        return trainer.run(stop_at=stop_at)
-    except Exception as e:  # not KeyboardInterrupt: a kill is no failure, the checkpoint resumes it
-        # a refused config (ConfigError before the Trainer exists) is bad input, not a failed run: no file
-        # in a folder that may hold another run; everything else leaves its traceback in the run folder
-        if trainer is not None or not isinstance(e, ConfigError):
-            folder.write_error()
-        raise
-    finally:
-        if trainer is not None:
-            trainer.env.close()
 
 
 # --------------------------------------------------------------------------- python -m maniskill_dualher.train
@@ -466,6 +589,9 @@ def main(argv=None) -> int:
     except ConfigError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
+    except TrainingDiverged as e:  # a failed run, not bad input
+        print(f"error: {e}", file=sys.stderr)
+        return 1
     print(json.dumps(final))
     return 0
 

@@ -5,7 +5,7 @@ import itertools
 import numpy as np
 import pytest
 
-import maniskill_dualher  # noqa: F401  (registers the tasks)
+import maniskill_dualher.tasks  # noqa: F401  (registers the tasks)
 from maniskill_dualher.tasks.close_box import CloseBoxEnv
 from maniskill_dualher.tasks.solvers import make_solver
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-import maniskill_dualher  # noqa: F401  (registers the tasks)
+import maniskill_dualher.tasks  # noqa: F401  (registers the tasks)
 from mani_skill.utils.geometry import rotation_conversions as rc
 from maniskill_dualher.tasks.close_microwave import CloseMicrowaveEnv
 from maniskill_dualher.tasks.solvers import make_solver

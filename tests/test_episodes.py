@@ -5,7 +5,7 @@ import pytest
 
 from maniskill_dualher.config import ReplayConfig, RunConfig, SACConfig
 from maniskill_dualher.replay.her import relabel
-from maniskill_dualher.train import Trainer
+from maniskill_dualher.train import Trainer, run_one
 
 from batched_goal_env import TOL, register
 from fakes import point_episode, reward_fn
@@ -25,7 +25,7 @@ def train_capturing(cfg, tmp_path):
     eps = []
     add = t.method.add_episode
     t.method.add_episode = lambda ep: (eps.append(ep), add(ep))[1]
-    t.run()
+    run_one(t)
     t.env.close()
     return t, eps
 
@@ -114,9 +114,9 @@ def test_update_schedule_per_step(tmp_path, n, utd):
     cfg = point_cfg(n=n, steps=300, updates_per_step=utd, learning_starts=90)
     t = Trainer(cfg, tmp_path / "run", show_progress=False)
     at = []
-    upd = t._update
-    t._update = lambda: (at.append(t.env_steps), upd())[1]
-    t.run()
+    learn = t.learn
+    t.learn = lambda *a: (at.append(t.env_steps), learn(*a))[1]
+    run_one(t)
     t.env.close()
     assert at[0] >= 90
     vector_steps = (t.env_steps - at[0]) // n + 1
@@ -130,7 +130,7 @@ def test_n_env_loop_learns_the_point_task(tmp_path):
     cfg.eval_every, cfg.eval_episodes = 2000, 20
     cfg.replay.her_k = 4
     t = Trainer(cfg, tmp_path / "run", show_progress=False)
-    final = t.run()
+    final = run_one(t)
     t.env.close()
     assert t.rows[0]["eval_success_rate"] <= final["eval_success_rate"]
     assert final["eval_success_rate"] >= 0.8
@@ -152,7 +152,7 @@ def test_a_nan_loss_stops_the_run_keeping_the_last_good_checkpoint(tmp_path):
 
     t.agent.update = poisoned
     with pytest.raises(TrainingDiverged, match="losses/qf_loss became nan") as e:
-        t.run()
+        run_one(t)
     t.env.close()
     assert "\n" not in str(e.value) and "last good checkpoint" in str(e.value)
     state = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=False)

@@ -14,7 +14,7 @@ from maniskill_dualher.config import ConfigError, ReplayConfig, RunConfig, SACCo
 from maniskill_dualher.envs import EVAL_SEED_BASE
 from maniskill_dualher.evaluate import _episode, evaluate_policy, main, make_eval_env, success_ci, zero_shot_matrix
 from maniskill_dualher.policy import Policy, load_policy, save_policy
-from maniskill_dualher.train import Trainer, run_training
+from maniskill_dualher.train import Trainer, run_one, run_training
 
 from batched_goal_env import register
 
@@ -32,7 +32,7 @@ def trained(tmp_path_factory):
     out = tmp_path_factory.mktemp("run") / "reach"
     cfg = tiny()
     t = Trainer(cfg, out, show_progress=False)
-    final = t.run()
+    final = run_one(t)
     probe = np.random.default_rng(0).normal(size=(16, t.spec.input_dim)).astype(np.float32)
     agent_actions = t.agent.act(probe, deterministic=True)
     rollouts = [t._rollout(EVAL_SEED_BASE + i, lambda x: t.agent.act(x, deterministic=True))[0]
@@ -64,7 +64,7 @@ def test_policy_files_at_every_evaluation_and_the_best_kept_across_resume(tmp_pa
     saved = []
     real_save = train_mod.save_policy
     monkeypatch.setattr(train_mod, "save_policy",
-                        lambda t, path, **kw: (saved.append((Path(path).name, t.env_steps)), real_save(t, path, **kw))[1])
+                        lambda a, path, **kw: (saved.append((Path(path).name, kw["env_steps"])), real_save(a, path, **kw))[1])
 
     run_training(point_cfg(), tmp_path / "straight", show_progress=False)
     rows = rundir.read_metrics(tmp_path / "straight")
@@ -132,7 +132,7 @@ def test_save_policy_from_an_agent(trained, tmp_path):
     pol = load_policy(tmp_path / "p.pt")
     assert pol.env_steps == 7 and pol.eval_success is None
     np.testing.assert_array_equal(pol.act(trained["probe"]), trained["agent_actions"])
-    with pytest.raises(ValueError, match="spec"):
+    with pytest.raises(TypeError, match="spec"):  # explicit arguments: nothing is guessed from the agent
         save_policy(t.agent, tmp_path / "q.pt")
 
 
@@ -261,13 +261,13 @@ def test_zero_shot_matrix(trained, tmp_path):
 
 # --------------------------------------------------------------------------- run folder extras
 def test_failed_run_leaves_its_traceback(tmp_path, monkeypatch):
-    def boom(self):
+    def boom(self, *args):
         raise RuntimeError("boom in the update")
-    monkeypatch.setattr(Trainer, "_update", boom)
+    monkeypatch.setattr(Trainer, "learn", boom)
     with pytest.raises(RuntimeError, match="boom"):
         run_training(tiny(steps=100), tmp_path / "r", show_progress=False)
     text = (tmp_path / "r" / "error.txt").read_text()
-    assert "Traceback" in text and "RuntimeError: boom in the update" in text and "_update" in text
+    assert "Traceback" in text and "RuntimeError: boom in the update" in text and "learn" in text
     # a refused config is bad input, not a failed run: the other run's folder gets no error.txt
     (tmp_path / "r" / "error.txt").unlink()
     with pytest.raises(ConfigError, match="different config"):

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-import maniskill_dualher  # noqa: F401  (registers the tasks)
+import maniskill_dualher.tasks  # noqa: F401  (registers the tasks)
 from maniskill_dualher.tasks.common import OBS_SLICES, split_goal_obs, transform_points
 from maniskill_dualher.tasks.close_box import CloseBoxEnv
 from maniskill_dualher.tasks.close_microwave import CloseMicrowaveEnv

@@ -1,4 +1,4 @@
-"""Many runs per process (pack.py): a run's results do not depend on its pack, bit for bit; a killed pack
+"""Many runs per process (train.train_runs with pack.Updater): a run's results do not depend on its pack, bit for bit; a killed pack
 resumes to the same metrics; one failing run fails alone; the sweep's scheduler packs compatible runs."""
 import csv
 import hashlib
@@ -15,11 +15,11 @@ import pytest
 import torch
 
 from maniskill_dualher.config import RunConfig, SACConfig
-from maniskill_dualher.pack import Job, pack_key, run_pack
+from maniskill_dualher.pack import pack_key
 from maniskill_dualher.replay.base import Batch
 from maniskill_dualher.sac import SAC
 from maniskill_dualher.sac_fused import FusedUpdate
-from maniskill_dualher.train import run_training
+from maniskill_dualher.train import Job, run_training, train_runs as run_pack
 
 from test_train import tiny
 
@@ -33,9 +33,13 @@ def _batch(g, B, d, A, weights):
                  (torch.rand(B, generator=g) > .8).float(), torch.rand(B, generator=g) + .5 if weights else None)
 
 
-def _agent(seed, cfg, d=11, A=3):
-    torch.manual_seed(seed)
-    return SAC(d, A, cfg), torch.get_rng_state()
+def _agent(seed, cfg, d=11, A=3, own=True):
+    """An agent seeded as a run seeds it: its own generator, or (own=False) torch's global one."""
+    if not own:
+        torch.manual_seed(seed)
+        return SAC(d, A, cfg)
+    g = torch.Generator().manual_seed(seed)
+    return SAC(d, A, cfg, generator=g, init_generator=g)
 
 
 @pytest.mark.parametrize("variant,weights,actor_batch,learn_alpha",
@@ -46,29 +50,21 @@ def test_a_packed_update_gives_each_agent_its_own_update(variant, weights, actor
     batches = {s: [(_batch(g, 32, 11, 3, weights), _batch(g, 32, 11, 3, False) if actor_batch else None)
                    for _ in range(n)] for s in seeds for g in [torch.Generator().manual_seed(100 + s)]}
     alone = {}
-    for s in seeds:  # each agent alone, on the global generator as the training loop runs it
-        agent, state = _agent(s, cfg)
-        torch.set_rng_state(state)
+    for s in seeds:  # each agent alone, on the global generator (as every run did before it owned a generator)
+        agent = _agent(s, cfg, own=False)
         tds = [agent.update(b, ab)[0] for b, ab in batches[s]]
         alone[s] = ([p.detach().clone() for p in agent.parameters()], np.stack(tds))
     made = [_agent(s, cfg) for s in seeds]
-    states = [st for _, st in made]
-    fused = FusedUpdate([a for a, _ in made])
-
-    def draw(i, shapes):
-        torch.set_rng_state(states[i])
-        out = [torch.randn(sh) for sh in shapes]
-        states[i] = torch.get_rng_state()
-        return out
+    fused = FusedUpdate(made)
 
     tds = {s: [] for s in seeds}
     for k in range(n):
-        td, logs = fused.step_pack([batches[s][k][0] for s in seeds], [batches[s][k][1] for s in seeds], draw)
+        td, logs = fused.step_pack([batches[s][k][0] for s in seeds], [batches[s][k][1] for s in seeds])
         for i, s in enumerate(seeds):
             tds[s].append(td[i])
         assert len(logs) == 3 and all(np.isfinite(v) for lg in logs for v in lg.values())
     for i, s in enumerate(seeds):
-        params = [p.detach() for p in made[i][0].parameters()]
+        params = [p.detach() for p in made[i].parameters()]
         assert all(torch.equal(a, b) for a, b in zip(alone[s][0], params)), f"agent {s}: weights differ"
         np.testing.assert_array_equal(alone[s][1], np.stack(tds[s]))
     assert not all(torch.equal(a, b) for a, b in zip(params, alone[seeds[0]][0])), "the agents differ"
@@ -133,7 +129,7 @@ def test_a_pack_killed_mid_run_resumes_to_the_same_metrics(alone, tmp_path):
     """SIGKILL while every run of the pack is past its first checkpoint; the rerun resumes each from its own."""
     script = ("import sys; sys.path.insert(0, %r)\n"
               "from test_pack import CFGS, _cfg\n"
-              "from maniskill_dualher.pack import Job, run_pack\n"
+              "from maniskill_dualher.train import Job, train_runs as run_pack\n"
               "run_pack([Job(_cfg(*c, ckpt=100), %r + '/' + str(i)) for i, c in enumerate(CFGS)])\n"
               % (str(REPO / "tests"), str(tmp_path)))
     p = subprocess.Popen([sys.executable, "-c", script], cwd=REPO, start_new_session=True,

@@ -14,6 +14,7 @@ from maniskill_dualher import methods
 from maniskill_dualher.analysis.plots import color_of
 from maniskill_dualher.config import TASKS
 from maniskill_dualher.experiment import sweep
+from maniskill_dualher.sweep import main as run_sweep, train_runs as entry_train_runs  # noqa: F401
 from maniskill_dualher.replay.base import Batch, Episode
 from maniskill_dualher.replay.her import episode_transitions
 from maniskill_dualher.replay.method import BufferMethod
@@ -63,7 +64,7 @@ def _collect_labels(monkeypatch):
 def test_a_registered_method_takes_part_everywhere(registered, tmp_path, monkeypatch):
     labels = _collect_labels(monkeypatch)
     out = tmp_path / "sweep"
-    rc = sweep.main(["--preset", "smoke", "--out", str(out), "--backend", "inline", "--seeds", "1",
+    rc = run_sweep(["--preset", "smoke", "--out", str(out), "--backend", "inline", "--seeds", "1",
                      "--methods", "sac_her,sac_her_per", "--experiments", "single,transfer,scratch",
                      "--tasks", "ReachTarget-v1"])
     assert rc == 0
@@ -93,7 +94,7 @@ def test_an_experiment_with_arms_is_one_registry_entry(tmp_path, monkeypatch):
     monkeypatch.setattr(claims, "CLAIMS", claims.CLAIMS + [claim])
     labels = _collect_labels(monkeypatch)
     out = tmp_path / "sweep"
-    assert sweep.main(["--preset", "smoke", "--out", str(out), "--backend", "inline", "--seeds", "2",
+    assert run_sweep(["--preset", "smoke", "--out", str(out), "--backend", "inline", "--seeds", "2",
                        "--methods", "dual_buffer", "--experiments", "my_ablation"]) == 0
     runs = sorted(p.parent.name for p in (out / "runs").rglob("config.json"))
     assert len(runs) == 2 * (2 + 3)          # per seed: two shared source stages, three adaptations
@@ -112,7 +113,7 @@ def test_an_experiment_with_arms_is_one_registry_entry(tmp_path, monkeypatch):
 
 
 def test_unknown_method_names_the_registry(capsys):
-    assert sweep.main(["--methods", "nope", "--dry-run"]) == 2
+    assert run_sweep(["--methods", "nope", "--dry-run"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "nope" in err and "sac_her_per" in err
 

@@ -162,7 +162,7 @@ def test_settings_the_fused_update_needs_are_checked(bad, match):
 def test_bf16_update_learns_the_point_task(tmp_path):
     """Learning check for the bf16 products (they change numerics beyond rounding): the batched point-goal
     task is solved as with fp32 (tests/test_episodes.py::test_n_env_loop_learns_the_point_task)."""
-    from maniskill_dualher.train import Trainer
+    from maniskill_dualher.train import Trainer, run_one
     from test_episodes import point_cfg  # tests/ is on sys.path
     cfg = point_cfg(n=4, method="sac_her_per", steps=4000, random_steps=400, learning_starts=200,
                  batch_size=64, hidden=(64, 64), lr=1e-3, tau=0.05, gamma=0.9, variant="modern")
@@ -170,7 +170,7 @@ def test_bf16_update_learns_the_point_task(tmp_path):
     cfg.eval_every, cfg.eval_episodes = 2000, 20
     cfg.replay.her_k = 4
     t = Trainer(cfg, tmp_path / "run", show_progress=False)
-    final = t.run()
+    final = run_one(t)
     t.env.close()
     assert final["eval_success_rate"] >= 0.8
 

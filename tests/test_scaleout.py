@@ -17,6 +17,7 @@ import pytest
 from maniskill_dualher import rundir
 from maniskill_dualher.config import RunConfig
 from maniskill_dualher.experiment import backends, sweep
+from maniskill_dualher.sweep import main as run_sweep, train_runs as entry_train_runs  # noqa: F401
 from maniskill_dualher.experiment.grid import Node
 from maniskill_dualher.experiment.lock import LOCK_FILE, FolderLock
 
@@ -75,7 +76,7 @@ def reference(tmp_path_factory):
     """The chain, undisturbed, inline: what every disturbed sweep must reproduce."""
     out = tmp_path_factory.mktemp("scaleout") / "ref"
     t0 = time.perf_counter()
-    assert sweep.main([*CHAIN, "--out", str(out), "--backend", "inline"]) == 0
+    assert run_sweep([*CHAIN, "--out", str(out), "--backend", "inline"]) == 0
     print(f"reference chain, inline: {time.perf_counter() - t0:.1f} s")
     return out
 
@@ -207,7 +208,7 @@ def test_lock_in_process(tmp_path, capsys):
     with FolderLock(out):
         with pytest.raises(sweep.ConfigError, match="in use by another sweep"):
             FolderLock(out).acquire()
-        assert sweep.main([*CHAIN, "--out", str(out)]) == 2
+        assert run_sweep([*CHAIN, "--out", str(out)]) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and f"pid {os.getpid()}" in err[0]
     FolderLock(out).acquire().release()                     # free again, and released by main on error
@@ -287,7 +288,7 @@ def test_progress_poller_never_goes_back_and_inline_moves_midrun(reference, tmp_
     stage0 = next(x for x in grid_nodes if x.stage == 0)
     out = tmp_path / "inline"
     positions = []
-    be = backends.InlineBackend()
+    be = backends.InlineBackend(entry_train_runs)
     real_poll = backends.RunProgress.poll
 
     def poll(self):
@@ -306,7 +307,7 @@ def test_progress_poller_never_goes_back_and_inline_moves_midrun(reference, tmp_
 def test_emit_commands_in_dependency_order_and_they_reproduce_the_sweep(reference, tmp_path, capsys):
     out = tmp_path / "slurm"
     cmds = tmp_path / "jobs" / "commands.txt"
-    assert sweep.main([*CHAIN, "--out", str(out), "--emit-commands", str(cmds)]) == 0
+    assert run_sweep([*CHAIN, "--out", str(out), "--emit-commands", str(cmds)]) == 0
     printed = capsys.readouterr().out
     assert "level 2: lines 3-3" in printed
     lines = cmds.read_text().splitlines()
@@ -334,6 +335,6 @@ def test_emit_commands_in_dependency_order_and_they_reproduce_the_sweep(referenc
         assert rundir.is_done(outs[i])
         if i == 0:
             print(f"first emitted command: {time.perf_counter() - t0:.1f} s")
-    assert sweep.main([*CHAIN, "--out", str(out)]) == 0
+    assert run_sweep([*CHAIN, "--out", str(out)]) == 0
     assert "3 of 3 runs already finished" in capsys.readouterr().out
     assert _tables(out) == _tables(reference)

@@ -11,6 +11,7 @@ from maniskill_dualher.baselines.sac_her_per import SACHerPerReplay
 from maniskill_dualher.config import ConfigError, RunConfig
 from maniskill_dualher.dual_buffer import DualBufferReplay
 from maniskill_dualher.experiment import grid, protocol, sweep
+from maniskill_dualher.sweep import main as run_sweep, train_runs as entry_train_runs  # noqa: F401
 
 from fakes import point_episode, spec
 
@@ -111,7 +112,7 @@ def test_shared_prior_sweep_end_to_end(tmp_path):
     """Smoke budgets: SAC+HER+PER's two source stages, then both adaptations from them; the claims see both."""
     import csv
     out = tmp_path / "sweep"
-    assert sweep.main(["--preset", "smoke", "--out", str(out), "--backend", "inline", "--seeds", "1",
+    assert run_sweep(["--preset", "smoke", "--out", str(out), "--backend", "inline", "--seeds", "1",
                        "--experiments", "shared_prior"]) == 0
     done = sorted(str(p.parent.relative_to(out)) for p in out.rglob("done.json"))
     assert len(done) == 4 and all(r.startswith("runs/chain/sac_her_per-s0/") for r in done)

@@ -20,8 +20,10 @@ import pytest
 from maniskill_dualher import rundir
 from maniskill_dualher.config import TASKS, ReplayConfig, RunConfig, SACConfig
 from maniskill_dualher.experiment import protocol, sweep
+from maniskill_dualher.sweep import main as run_sweep, train_runs as entry_train_runs  # noqa: F401
 from maniskill_dualher.experiment.backends import run_grid
 from maniskill_dualher.experiment.grid import build_grid
+from maniskill_dualher.train import train_chain
 
 REPO = Path(__file__).resolve().parents[1]
 TABLES = ["table4_sampling_ratio.csv", "table5_multitask.csv", "single_task.csv", "ablations.csv"]
@@ -49,7 +51,7 @@ def smoke_local(tmp_path_factory):
     """The smoke preset, uninterrupted, local pool: the reference every other sweep is compared to."""
     out = tmp_path_factory.mktemp("smoke") / "local"
     t0 = time.perf_counter()
-    assert sweep.main(["--preset", "smoke", "--out", str(out), "--workers", "2"]) == 0
+    assert run_sweep(["--preset", "smoke", "--out", str(out), "--workers", "2"]) == 0
     print(f"smoke preset, local backend: {time.perf_counter() - t0:.1f} s wall")
     return out
 
@@ -183,7 +185,7 @@ def test_smoke_ray_backend_same_tables(smoke_local, tmp_path):
     pytest.importorskip("ray")
     out = tmp_path / "ray"
     t0 = time.perf_counter()
-    assert sweep.main(["--preset", "smoke", "--out", str(out), "--backend", "ray", "--workers", "2"]) == 0
+    assert run_sweep(["--preset", "smoke", "--out", str(out), "--backend", "ray", "--workers", "2"]) == 0
     print(f"smoke preset, ray backend: {time.perf_counter() - t0:.1f} s wall")
     for name in OUTPUTS:
         assert (out / name).is_file(), name
@@ -221,7 +223,7 @@ def test_sigkill_midway_then_resume_gives_identical_tables(smoke_local, tmp_path
     # reference: the sub-grid's tables from the uninterrupted smoke runs (all done: the sweep only reports)
     ref = tmp_path / "ref"
     shutil.copytree(smoke_local, ref)
-    assert sweep.main([*SUBGRID, "--out", str(ref), "--force"]) == 0
+    assert run_sweep([*SUBGRID, "--out", str(ref), "--force"]) == 0
     assert len(json.loads((ref / "sweep.json").read_text())["runs"]) == 5
 
     out = tmp_path / "killed"
@@ -284,7 +286,7 @@ def test_make_stages_follows_the_paper():
 
 def test_run_transfer_chains_networks_and_replay(tmp_path):
     stages = protocol.make_stages(_tiny("ReachTarget-v1"), ["ReachTarget-v1", "CloseMicrowave-v1"], [150, 150])
-    rows = protocol.run_transfer(stages, tmp_path / "chain", carry_replay=True, show_progress=False)
+    rows = train_chain(stages, tmp_path / "chain", carry_replay=True, show_progress=False)
     d0, d1 = protocol.transfer_chain_dirs(tmp_path / "chain", stages, True)
     assert len(rows) == 2 and all(rundir.is_done(d) for d in (d0, d1))
     info = json.loads((d1 / "stage.json").read_text())
@@ -295,7 +297,7 @@ def test_run_transfer_chains_networks_and_replay(tmp_path):
     fresh = run_training(stages[1], tmp_path / "fresh", init_from=d0, carry_replay=False, show_progress=False)
     assert rows[1]["replay_size"] > fresh["replay_size"] > 0
     # finished chain: a second call trains nothing and returns the same rows
-    assert protocol.run_transfer(stages, tmp_path / "chain", show_progress=False) == rows
+    assert train_chain(stages, tmp_path / "chain", show_progress=False) == rows
 
 
 # ----------------------------------------------------------------------------- bad input
@@ -326,7 +328,7 @@ def test_run_transfer_chains_networks_and_replay(tmp_path):
 def test_bad_input_one_line_exit_2_nothing_written(tmp_path, capsys, args, expect):
     out = tmp_path / "o"
     with pytest.raises(SystemExit) as e:
-        sys.exit(sweep.main(["--preset", "smoke", "--out", str(out), *args]))
+        sys.exit(run_sweep(["--preset", "smoke", "--out", str(out), *args]))
     assert e.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("error:") and expect in err[0], err
@@ -342,7 +344,7 @@ def test_out_folder_of_another_sweep_is_refused(tmp_path, capsys):
     out.mkdir()
     (out / "sweep.json").write_text(json.dumps({"preset": "quick", "runs": []}))
     before = _snapshot(out)
-    assert sweep.main(["--preset", "smoke", "--out", str(out)]) == 2
+    assert run_sweep(["--preset", "smoke", "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "different sweep" in err[0] and "--force" in err[0]
     assert _snapshot(out) == before
@@ -351,7 +353,7 @@ def test_out_folder_of_another_sweep_is_refused(tmp_path, capsys):
     (out / "runs/single/x-1234").mkdir(parents=True)
     (out / "runs/single/x-1234/config.json").write_text("{}")
     before = _snapshot(out)
-    assert sweep.main(["--preset", "smoke", "--out", str(out)]) == 2
+    assert run_sweep(["--preset", "smoke", "--out", str(out)]) == 2
     assert "different config" in capsys.readouterr().err
     assert _snapshot(out) == before
 
@@ -370,7 +372,7 @@ def test_seeds_settings_and_dry_run(tmp_path, capsys):
     assert sweep.parse_seeds("3") == (0, 1, 2)
     assert sweep.parse_seeds("4,7") == (4, 7) and sweep.parse_seeds("7,") == (7,)
     out = tmp_path / "o"
-    assert sweep.main(["--preset", "smoke", "--out", str(out), "--experiments", "ratios", "--seeds", "1",
+    assert run_sweep(["--preset", "smoke", "--out", str(out), "--experiments", "ratios", "--seeds", "1",
                        "--dry-run"]) == 0
     lines = capsys.readouterr().out.strip().splitlines()
     assert lines[-1] == "5 runs; 750 env steps to go; nothing written (--dry-run)"  # 2 sources, 3 adaptations
@@ -394,7 +396,7 @@ def test_set_changes_every_run_or_one_stage(tmp_path, capsys):
             assert n.cfg.sac.random_steps == 0 and n.cfg.replay.her_k == 8
         else:
             assert n.cfg.sac.random_steps == 100 and n.cfg.replay.her_k == 2
-    assert sweep.main(["--set", "replay.dual_mode=split", "--dry-run", "--out", str(tmp_path / "o")]) == 0
+    assert run_sweep(["--set", "replay.dual_mode=split", "--dry-run", "--out", str(tmp_path / "o")]) == 0
     out = capsys.readouterr().out
     assert "96 runs" in out and not (tmp_path / "o").exists()
 
@@ -487,3 +489,23 @@ def test_readme_first_command_on_a_fresh_copy_writes_outside_the_reference(tmp_p
     assert after == before, "the committed reference was touched"
     status = subprocess.run(["git", "status", "--porcelain"], cwd=repo, capture_output=True, text=True).stdout
     assert status == "", status
+
+
+def test_capped_arms_are_named_and_an_explicit_request_beyond_a_cap_is_refused(tmp_path, capsys):
+    """Arm/Experiment.max_seeds never cut silently: every plan names the capped arms; --seeds beyond a selected
+    arm's cap is one line, exit 2, nothing written, unless --allow-capped."""
+    from maniskill_dualher.experiment.registry import EXPERIMENTS
+    capped = [(e.name, a.name, min(c for c in (e.max_seeds, a.max_seeds) if c)) for e in EXPERIMENTS.values()
+              for a in e.arms if e.max_seeds or a.max_seeds]
+    assert capped, "the registry has capped arms"
+    name, arm, cap = capped[0]
+    out = tmp_path / "o"
+    args = ["--preset", "smoke", "--experiments", f"{name}:{arm}", "--out", str(out)]
+    assert run_sweep([*args, "--seeds", str(cap + 1), "--dry-run"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"error: {name}/{arm} runs at most {cap} seeds, {cap + 1} asked")
+    assert not out.exists()
+    assert run_sweep([*args, "--seeds", str(cap + 1), "--dry-run", "--allow-capped"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert f"capped: {name}/{arm} runs {cap} of the {cap + 1} seeds asked (max_seeds)" in lines
+    assert "--allow-capped" in sweep.make_parser().format_help()

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-import maniskill_dualher  # noqa: F401  (registers the tasks)
+import maniskill_dualher.tasks  # noqa: F401  (registers the tasks)
 from maniskill_dualher.tasks.common import (
     DEFAULT_CONTROL_MODE,
     DEFAULT_MAX_EPISODE_STEPS,

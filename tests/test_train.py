@@ -235,3 +235,21 @@ def test_train_preset_and_set_use_the_one_parser():
                         (["--preset", "nope"], "nope")):
         with pytest.raises(ConfigError, match=needle):
             parse(*bad)
+
+
+def test_an_unreadable_checkpoint_falls_back_to_the_previous_one(tmp_path, capfd):
+    """A corrupt checkpoint.pt: the rerun resumes from checkpoint.prev.pt with one warning line and ends with
+    the same metrics as an uninterrupted run; a finished run keeps one checkpoint."""
+    cfg = tiny(steps=200)
+    cfg.checkpoint_every = 50
+    straight = run_training(cfg, tmp_path / "a", show_progress=False)
+    assert run_training(cfg, tmp_path / "b", show_progress=False, stop_at=150) is None
+    assert (tmp_path / "b" / "checkpoint.prev.pt").is_file()
+    (tmp_path / "b" / "checkpoint.pt").write_bytes(b"not a checkpoint")
+    capfd.readouterr()
+    resumed = run_training(cfg, tmp_path / "b", show_progress=False)
+    warnings = [ln for ln in capfd.readouterr().err.splitlines() if ln.startswith("warning:")]
+    assert len(warnings) == 1 and "unreadable checkpoint" in warnings[0] and "checkpoint.prev.pt" in warnings[0]
+    assert {k: v for k, v in resumed.items() if k != "wall_time_s"} == \
+        {k: v for k, v in straight.items() if k != "wall_time_s"}
+    assert not (tmp_path / "b" / "checkpoint.prev.pt").exists()

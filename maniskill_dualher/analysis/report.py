@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Dict, List, Optional, Sequence
 
 from .. import rundir
-from ..cli import OneLineParser
+from ..cmdline import OneLineParser
 from ..config import ConfigError
 from ..experiment.registry import default_experiments  # plain data: no torch, no simulator
 from ..fileio import atomic_write_text, csv_text, fmt

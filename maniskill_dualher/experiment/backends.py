@@ -30,7 +30,7 @@ from .. import rundir
 from ..config import RunConfig
 from ..fileio import atomic_write_text
 from . import protocol
-from .grid import Node
+from .grid import Node, job_for
 
 PROGRESS = "progress.json"      # {"env_steps", "total_steps", "pid", "host", "time"}: a run in flight
 PROGRESS_EVERY_S = 2.0          # a worker writes it at most this often
@@ -97,45 +97,32 @@ def _worker_init(parent_pid: int) -> None:
     torch.set_num_threads(1)
 
 
-def execute(payload: dict, listener: Optional[Callable[[], None]] = None) -> dict:
-    """Run one grid node (in a worker) and return its final metrics row; a pack payload (``{"pack": [node
-    payloads]}``, ``run_grid(pack=S)``) runs its nodes side by side (``pack.py``) and returns each one's row or
-    error: ``{"pack": [{"rel", "row"} | {"rel", "error"}]}``."""
+def execute(payload: dict, train: Callable, listener: Optional[Callable[[], None]] = None) -> dict:
+    """Run one grid node (in a worker) with ``train`` (``train.train_runs``, handed in by the entry point
+    ``maniskill_dualher/sweep.py``: the experiment layer does not import the training code) and return its
+    final metrics row; a pack payload (``{"pack": [node payloads]}``, ``run_grid(pack=S)``) runs its nodes side
+    by side and returns each one's row or error: ``{"pack": [{"rel", "row"} | {"rel", "error"}]}``."""
     import torch
-    from ..train import Trainer
     torch.set_num_threads(1)
-    before = getattr(Trainer, "progress_hook", None)
-    Trainer.progress_hook = ProgressFile(listener=listener)
-    try:
-        if "pack" in payload:
-            from ..pack import Job, run_pack
-            jobs, out = [], []
-            for p in payload["pack"]:
-                try:
-                    jobs.append(Job(**_job(p)))
-                    out.append({"rel": p["rel"]})
-                except Exception as e:  # a stage whose parent is not there: that node alone fails
-                    out.append({"rel": p["rel"], "error": _error_line(e)})
-            res = iter(run_pack(jobs))
-            for o in out:
-                if "error" not in o:
-                    r = next(res)
-                    o.update({"row": dict(r["row"])} if "error" not in r else {"error": _error_line(r["error"])})
-            return {"pack": out}
-        from ..train import run_training
-        job = _job(payload)
-        row = run_training(job.pop("cfg"), job.pop("out"), show_progress=False, **job)
-    finally:
-        Trainer.progress_hook = before
-    return {"rel": payload["rel"], "row": dict(row)}
-
-
-def _job(payload: dict) -> dict:
-    """A node payload -> run_training's arguments (a chain stage: its folder, parent and replay flags)."""
-    if "stages" in payload:
-        stages = [RunConfig.from_dict(s) for s in payload["stages"]]
-        return protocol.stage_job(stages, payload["stage"], payload["chain_dir"], payload["carry_replay"])
-    return dict(cfg=RunConfig.from_dict(payload["cfg"]), out=payload["out"])
+    progress = ProgressFile(listener=listener)
+    members = payload["pack"] if "pack" in payload else [payload]
+    jobs, out = [], []
+    for p in members:
+        try:
+            jobs.append(job_for(p))
+            out.append({"rel": p["rel"]})
+        except Exception as e:  # a stage whose parent is not there: that node alone fails
+            if "pack" not in payload:
+                raise
+            out.append({"rel": p["rel"], "error": _error_line(e)})
+    res = iter(train(jobs, progress=progress))  # jobs as dicts of train.Job's fields
+    for o in out:
+        if "error" not in o:
+            r = next(res)
+            if "error" in r and "pack" not in payload:
+                raise r["error"]
+            o.update({"row": dict(r["row"])} if "error" not in r else {"error": _error_line(r["error"])})
+    return {"pack": out} if "pack" in payload else out[0]
 
 
 def _error_line(e: BaseException) -> str:
@@ -151,7 +138,8 @@ class LocalBackend:
     When a worker dies the pool is broken for every run in flight (``BrokenProcessPool``): ``result``
     says ``WorkerLost`` and the next ``submit`` builds a fresh pool."""
 
-    def __init__(self, workers: int):
+    def __init__(self, workers: int, train: Callable):
+        self.train = train
         os.environ.setdefault("OMP_NUM_THREADS", "1")
         os.environ.setdefault("MKL_NUM_THREADS", "1")
         self.capacity = workers
@@ -166,11 +154,11 @@ class LocalBackend:
     def submit(self, payload):
         from concurrent.futures.process import BrokenProcessPool
         try:
-            return self.pool.submit(execute, payload)
+            return self.pool.submit(execute, payload, self.train)
         except BrokenProcessPool:  # a worker died: the old pool's workers are being ended; start over
             self.pool.shutdown(wait=False, cancel_futures=True)
             self.pool = self._new_pool()
-            return self.pool.submit(execute, payload)
+            return self.pool.submit(execute, payload, self.train)
 
     def wait(self, handles, timeout: Optional[float] = None):
         from concurrent.futures import FIRST_COMPLETED, wait
@@ -199,9 +187,12 @@ class InlineBackend:
         def __init__(self, value=None, error=None):
             self.value, self.error = value, error
 
+    def __init__(self, train: Callable):
+        self.train = train
+
     def submit(self, payload):
         try:
-            return self._Handle(value=execute(payload, listener=self.listener))
+            return self._Handle(value=execute(payload, self.train, listener=self.listener))
         except Exception as e:  # reported by run_grid like a worker's failure
             return self._Handle(error=e)
 
@@ -224,7 +215,8 @@ class RayBackend:
     A task whose worker or node dies is run again by Ray up to ``retries`` times (it resumes from its
     run folder's checkpoint, so the cluster must share ``--out``); a Python exception is not retried."""
 
-    def __init__(self, workers: Optional[int], address: Optional[str], retries: int = DEFAULT_RETRIES):
+    def __init__(self, workers: Optional[int], address: Optional[str], train: Callable,
+                 retries: int = DEFAULT_RETRIES):
         import ray
         self.ray = ray
         self.retries = retries
@@ -239,9 +231,10 @@ class RayBackend:
             ray.init(address="local", num_cpus=workers, include_dashboard=False, **kw)
         self.capacity = workers or max(1, int(ray.cluster_resources().get("CPU", 1)))
         self.fn = ray.remote(num_cpus=1, max_retries=retries, retry_exceptions=False)(execute)
+        self.train = train
 
     def submit(self, payload):
-        return self.fn.remote(payload)
+        return self.fn.remote(payload, self.train)
 
     def wait(self, handles, timeout: Optional[float] = None):
         ready, _ = self.ray.wait(list(handles), num_returns=1, timeout=timeout)
@@ -453,25 +446,23 @@ def _levels(nodes: List[Node], out: Path) -> Dict[str, int]:
     return {n.rel: get(n) for n in nodes if not rundir.is_done(out / n.rel)}
 
 
-def train_command(n: Node, out: Path, config_file: Path) -> str:
-    """The ``python -m maniskill_dualher.train`` line that does what ``execute`` does for this node."""
-    args = ["python", "-m", "maniskill_dualher.train", "--config", str(config_file), "--out", str(out / n.rel),
+def train_command(job: dict, config_file: Path) -> str:
+    """The ``python -m maniskill_dualher.train`` line that runs ``job`` (``job_for``'s arguments)."""
+    args = ["python", "-m", "maniskill_dualher.train", "--config", str(config_file), "--out", str(job["out"]),
             "--no-progress"]
-    if n.stages is not None:
-        last = len(n.stages) - 1
-        if n.stage > 0:
-            args += ["--init-from", str(out / n.parent)]
-            if n.carry_replay:
-                args.append("--carry-replay")
-        if n.carry_replay and n.stage < last:
-            args.append("--keep-replay")
+    if job["init_from"] is not None:
+        args += ["--init-from", str(job["init_from"])]
+    if job["carry_replay"]:
+        args.append("--carry-replay")
+    if job["keep_replay"]:
+        args.append("--keep-replay")
     return " ".join(shlex.quote(a) for a in args)
 
 
 def emit_commands(nodes: List[Node], out: Path, path: Path) -> List[List[int]]:
     """Write one train command per unfinished run into ``path``, level by level (a run after its parent),
     each run's config as ``<path stem>-configs/<run>.json``, and each stage's ``stage.json`` (what
-    ``protocol.run_stage`` would write). Returns the 1-based line numbers of each level."""
+    ``protocol.stage_job`` writes). Returns the 1-based line numbers of each level."""
     out, path = Path(out).resolve(), Path(path).resolve()
     levels = _levels(nodes, out)
     # level by level; within one, long chains first (as run_grid starts them), then grid order
@@ -481,9 +472,7 @@ def emit_commands(nodes: List[Node], out: Path, path: Path) -> List[List[int]]:
     for n in order:
         cfg_file = cfg_dir / (n.rel.replace("/", "__") + ".json")
         atomic_write_text(cfg_file, n.cfg.to_json() + "\n")
-        if n.stages is not None and rundir.read_stage(out / n.rel) is None:
-            rundir.write_stage(out / n.rel, protocol.stage_lineage(n.stages, n.stage, n.carry_replay))
-        lines.append(train_command(n, out, cfg_file))
+        lines.append(train_command(job_for(n.payload(out), check_parent=False), cfg_file))
     atomic_write_text(path, "".join(line + "\n" for line in lines))
     by_level: List[List[int]] = []
     for i, n in enumerate(order, 1):

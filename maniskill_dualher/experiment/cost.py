@@ -63,7 +63,8 @@ def update_seconds(cfg, obs_dim: int = 43, act_dim: int = 8, iters: int = 30, pa
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
-        agents = [SAC(obs_dim, act_dim, s, device="cpu") for _ in range(pack)]
+        agents = [SAC(obs_dim, act_dim, s, device="cpu", generator=g, init_generator=g)
+                  for g in (torch.Generator().manual_seed(k) for k in range(pack))]  # the global one untouched
         B = s.batch_size
         g = torch.Generator().manual_seed(0)
         batch = Batch(obs=torch.randn(B, obs_dim, generator=g), action=torch.rand(B, act_dim, generator=g) * 2 - 1,
@@ -72,8 +73,7 @@ def update_seconds(cfg, obs_dim: int = 43, act_dim: int = 8, iters: int = 30, pa
             step = lambda: agents[0].update(batch)  # noqa: E731
         else:
             fused = FusedUpdate(agents)
-            step = lambda: fused.step_pack([batch] * pack, [None] * pack,  # noqa: E731
-                                           lambda i, shapes: [torch.randn(sh) for sh in shapes])
+            step = lambda: fused.step_pack([batch] * pack, [None] * pack)  # noqa: E731
         for _ in range(5):
             step()
         t0 = time.perf_counter()

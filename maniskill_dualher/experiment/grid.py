@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Dict, List, Optional, Sequence
+from typing import Dict, List, Optional, Sequence, Tuple
 
 from ..config import RunConfig
 from ..methods import method_spec
@@ -47,6 +47,35 @@ class Node:
             p.update(stages=[s.to_dict() for s in self.stages], stage=self.stage,
                      chain_dir=str((out / self.rel).parent), carry_replay=self.carry_replay)
         return p
+
+
+def capped_arms(d: dict) -> List[Tuple[str, int, int]]:
+    """The selected arms that run fewer seeds than the definition asks (``Experiment.max_seeds`` /
+    ``Arm.max_seeds``): (experiment/arm, seeds run, seeds asked)."""
+    out = []
+    for item in d["experiments"]:
+        exp_name, _, only = item.partition(":")
+        exp = experiment(exp_name)
+        asked = len(d["seeds"] if exp.kind == "single" else d["chain_seeds"])
+        for arm in exp.arms:
+            if only and arm.name not in only.split("+"):
+                continue
+            caps = [c for c in (exp.max_seeds, arm.max_seeds) if c]
+            if caps and min(caps) < asked:
+                out.append((f"{exp.name}/{arm.name}", min(caps), asked))
+    return out
+
+
+def job_for(payload: dict, check_parent: bool = True) -> dict:
+    """A node's payload -> its run's arguments (``train.Job``'s fields; a chain stage's folder, parent and
+    replay flags and its stage.json from ``protocol.stage_job``). The local, Ray and SLURM (command line)
+    paths all take a run from here. ``check_parent=False``: the parent runs later (a command list)."""
+    if "stages" in payload:
+        stages = [RunConfig.from_dict(s) for s in payload["stages"]]
+        return protocol.stage_job(stages, payload["stage"], payload["chain_dir"], payload["carry_replay"],
+                                  check_parent=check_parent)
+    return dict(cfg=RunConfig.from_dict(payload["cfg"]), out=payload["out"], init_from=None,
+                carry_replay=False, keep_replay=False)
 
 
 def preset_from_definition(d: dict) -> Preset:

@@ -97,15 +97,16 @@ def stage_lineage(stages: Sequence[RunConfig], i: int, carry_replay: bool) -> di
     }
 
 
-def stage_job(stages: Sequence[RunConfig], i: int, chain_dir: PathLike, carry_replay: bool = True) -> dict:
-    """What training stage i of a chain takes (``run_training``'s or a pack's ``Job``'s arguments); writes the
-    stage's ``stage.json``. Stage i-1 must be finished."""
+def stage_job(stages: Sequence[RunConfig], i: int, chain_dir: PathLike, carry_replay: bool = True,
+              check_parent: bool = True) -> dict:
+    """What training stage i of a chain takes (``train.Job``'s fields); writes the stage's ``stage.json``.
+    Stage i-1 must be finished."""
     chain_dir = Path(chain_dir)
     out = chain_dir / stage_dirname(stages, i, carry_replay)
     init_from = None
     if i > 0:
         init_from = chain_dir / stage_dirname(stages, i - 1, carry_replay)
-        if not rundir.is_done(init_from):
+        if check_parent and not rundir.is_done(init_from):
             raise ConfigError(f"stage {i} needs finished stage {i - 1} at {init_from}")
     if rundir.read_stage(out) is None:
         rundir.write_stage(out, stage_lineage(stages, i, carry_replay))
@@ -113,26 +114,7 @@ def stage_job(stages: Sequence[RunConfig], i: int, chain_dir: PathLike, carry_re
                 carry_replay=bool(carry_replay and i > 0), keep_replay=bool(carry_replay and i < len(stages) - 1))
 
 
-def run_stage(stages: Sequence[RunConfig], i: int, chain_dir: PathLike, carry_replay: bool = True,
-              show_progress: bool = True) -> dict:
-    """Train stage i of a chain in its folder under ``chain_dir`` (stage i-1 must be finished)."""
-    from maniskill_dualher.train import run_training  # heavy import: only where a run happens
-
-    job = stage_job(stages, i, chain_dir, carry_replay)
-    return run_training(job.pop("cfg"), job.pop("out"), show_progress=show_progress, **job)
-
-
-def run_transfer(stages: List[RunConfig], out_dir: PathLike, carry_replay: bool = True,
-                 show_progress: bool = True) -> List[dict]:
-    """Run a whole chain in ``out_dir``; finished stages are skipped, an interrupted one resumes.
-
-    Returns each stage's final metrics row.
-    """
-    validate_chain(stages)
-    return [run_stage(stages, i, out_dir, carry_replay, show_progress) for i in range(len(stages))]
-
-
 def transfer_chain_dirs(out_dir: PathLike, stages: Sequence[RunConfig], carry_replay: bool = True) -> List[Path]:
-    """The stage folders ``run_transfer`` uses, in order."""
+    """The stage folders a chain uses (``train.train_chain``), in order."""
     return [Path(out_dir) / stage_dirname(stages, i, carry_replay) for i in range(len(stages))]
 

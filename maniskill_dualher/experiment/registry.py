@@ -32,6 +32,14 @@ class Arm:
     max_seeds: Optional[int] = None            # only the first n of the experiment's seeds (second-tier arms)
     adapt_steps_factor: float = 1.0            # the adaptation stage's budget times this (a longer regime)
     prior_method: Optional[str] = None         # source stages trained by this method (one prior for all)
+    # display (registry data the analysis reads instead of naming arms): legend/table label (None: the name),
+    # matplotlib colour (None: the method's), and the tables/figures it feeds beyond its experiment's
+    label: Optional[str] = None
+    color: Optional[str] = None
+    feeds: Tuple[str, ...] = ()
+
+    def display(self) -> str:
+        return self.label if self.label is not None else self.name
 
 
 @dataclass(frozen=True)
@@ -45,6 +53,10 @@ class Experiment:
     default: bool = False                      # run when --experiments is not given
     max_seeds: Optional[int] = None            # use only the first n of the preset's seeds (costly arms)
     paper: str = ""                            # the paper's figure/table it reproduces, if any
+    # display: its label in tables and legends (None: the title) and the tables/figures it feeds (file
+    # names, e.g. "ablations.csv", "fig6_ablations.png"; () : the analysis's default for its kind)
+    label: Optional[str] = None
+    feeds: Tuple[str, ...] = ()
 
     def method_names(self) -> Tuple[str, ...]:
         if self.methods == "all":

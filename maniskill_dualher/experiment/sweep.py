@@ -16,15 +16,15 @@ import json
 import os
 import sys
 from pathlib import Path
-from typing import List, Optional, Sequence, Tuple
+from typing import Callable, List, Optional, Sequence, Tuple
 
 from .. import rundir
-from ..cli import OneLineParser
+from ..cmdline import OneLineParser
 from ..config import TASKS, ConfigError
 from ..methods import METHOD_SPECS
 from ..rundir import RUNS_DIR, SWEEP
 from . import overrides
-from .grid import Node, build_grid
+from .grid import Node, build_grid, capped_arms
 from .presets import PRESETS, preset
 from .registry import EXPERIMENTS, ablation_experiments, default_experiments
 
@@ -191,7 +191,11 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--methods", help=f"comma list of {', '.join(METHOD_SPECS)} (default: all; each experiment "
                                      "uses those of them it is defined for)")
     p.add_argument("--seeds", help="a count (3 -> seeds 0,1,2) or a list (0,4,7; one seed: '7,') for every "
-                                   "experiment; default: the preset's")
+                                   "experiment; default: the preset's. Costly arms are capped (Arm/Experiment "
+                                   "max_seeds; --dry-run names them): more seeds than a selected arm's cap are "
+                                   "refused unless --allow-capped (then the cap applies)")
+    p.add_argument("--allow-capped", action="store_true",
+                   help="accept that capped arms run fewer seeds than --seeds/--chain-seeds ask")
     p.add_argument("--chain-seeds", "--transfer-seeds", dest="chain_seeds",
                    help="seeds of chain and scratch experiments only (same syntax as --seeds)")
     p.add_argument("--task-order", default=",".join(TASKS),
@@ -241,13 +245,18 @@ def write_cells(nodes: List[Node], out: Path) -> None:
             rundir.write_json(path, new)
 
 
-def main(argv: Optional[Sequence[str]] = None) -> int:
+def main(argv: Optional[Sequence[str]] = None, train: Optional[Callable] = None,
+         report: Optional[Callable] = None) -> int:
+    """The sweep. ``train``: the training driver (``train.train_runs``) its workers call; ``report``: the
+    report builder (``analysis.report.build_report``) run at the end. The entry point
+    (``python -m maniskill_dualher.sweep``, ``maniskill_dualher/sweep.py``) hands both in, so this layer
+    imports neither; without ``train`` the sweep can plan (--dry-run, --emit-commands) but not run."""
     import contextlib
     with contextlib.ExitStack() as held:  # the out folder's lock (lock.py), released however the sweep ends
-        return _main(argv, held)
+        return _main(argv, held, train, report)
 
 
-def _main(argv: Optional[Sequence[str]], held) -> int:
+def _main(argv: Optional[Sequence[str]], held, train: Optional[Callable], report: Optional[Callable]) -> int:
     from .backends import InlineBackend, LocalBackend, RayBackend, emit_commands, run_grid
     from .lock import FolderLock
 
@@ -255,6 +264,12 @@ def _main(argv: Optional[Sequence[str]], held) -> int:
     a = parser.parse_args(argv)
     try:  # validate everything before writing anything
         d = definition_from_args(a)
+        capped = capped_arms(d)
+        explicit = a.seeds is not None or a.chain_seeds is not None
+        if capped and explicit and not a.allow_capped:
+            arm, cap, asked = capped[0]
+            raise ConfigError(f"{arm} runs at most {cap} seeds, {asked} asked ({len(capped)} capped arms; "
+                              f"--dry-run lists them): ask for fewer, select other arms, or pass --allow-capped")
         nodes = build_grid(d)
         d["runs"] = sorted(n.rel for n in nodes)
         out = Path(a.out if a.out else Path(RUNS_DIR) / a.preset)
@@ -273,6 +288,8 @@ def _main(argv: Optional[Sequence[str]], held) -> int:
             raise ConfigError(f"--retries must be >= 0, got {a.retries}")
         if a.emit_commands and a.dry_run:
             raise ConfigError("--emit-commands and --dry-run: choose one")
+        if train is None and not (a.dry_run or a.emit_commands):
+            raise ConfigError("no training driver given: run python -m maniskill_dualher.sweep")
         check_out_folder(out, d, a.force)
         if not a.dry_run:  # one sweep per folder; then look again, now that no other sweep can write it
             held.enter_context(FolderLock(out))
@@ -282,6 +299,8 @@ def _main(argv: Optional[Sequence[str]], held) -> int:
         return 2
     workers = a.workers or (None if a.ray_address else min(2, os.cpu_count() or 1))
     todo_cfgs = [n.cfg for n in nodes if not rundir.is_done(out / n.rel)]
+    for arm, cap, asked in capped:  # never a silent cut
+        print(f"capped: {arm} runs {cap} of the {asked} seeds asked (max_seeds)")
     if a.dry_run:
         for n in nodes:
             state = "done" if rundir.is_done(out / n.rel) else "todo"
@@ -311,8 +330,8 @@ def _main(argv: Optional[Sequence[str]], held) -> int:
         from .cost import describe, grid_cost
         for line in describe(grid_cost(todo_cfgs, a.pack), workers or 1):
             print(line, flush=True)
-    backend = {"local": lambda: LocalBackend(workers), "inline": InlineBackend,
-               "ray": lambda: RayBackend(workers, a.ray_address, retries=a.retries)}[a.backend]()
+    backend = {"local": lambda: LocalBackend(workers, train), "inline": lambda: InlineBackend(train),
+               "ray": lambda: RayBackend(workers, a.ray_address, train, retries=a.retries)}[a.backend]()
     cancel = True
     try:
         failed = run_grid(nodes, out, backend, retries=a.retries, pack=a.pack)
@@ -322,15 +341,11 @@ def _main(argv: Optional[Sequence[str]], held) -> int:
         return 130
     finally:
         backend.close(cancel=cancel)
-    if not a.no_report:
-        from ..analysis.report import build_report
-        written = build_report(out)
+    if not a.no_report and report is not None:
+        written = report(out)
         print(f"report: {len(written)} files in {out} (summary: {out / 'summary.md'})")
     if failed:
         print(f"error: {len(failed)} runs did not finish (first: {failed[0]}); rerun to retry", file=sys.stderr)
         return 1
     return 0
 
-
-if __name__ == "__main__":
-    sys.exit(main())
