@@ -126,7 +126,7 @@ REPRODUCED = "reproduced"
 CONTRADICTED = "contradicted"
 EQUIVALENT = "no difference larger than"
 INCONCLUSIVE = "inconclusive"
-SMALLER = "smaller than the paper's"
+ALPHA = 0.05            # 1 - the intervals' level: what an adjusted p-value is held to
 MIN_SEEDS = 3            # fewer per side: no CI is computed (a bootstrap of 2 values is just their range)
 MAX_SEEDS_ADVICE = 1000  # above this, "more seeds" is no advice
 POWER = 0.8              # seeds_to_decide: power of a two-sided 5% test at the observed difference
@@ -158,14 +158,12 @@ class Comparison:
     welch_high: float = math.nan
     ci_method: str = BOOT_T          # what produced ci_low/ci_high (see the module doc)
     paired: bool = False
-    paper_ratio: float = math.nan    # the paper's A/B, when it reports one
-    vs_paper_high: float = math.nan  # upper 95% bound of mean(A) - paper_ratio mean(B)
+    p_value: float = math.nan        # two-sided test of A = B: the interval at level 1 - p just reaches 0
+    p_equivalence: float = math.nan  # the interval at level 1 - p just reaches +-margin (1: |diff| >= margin)
 
     def verdict_text(self) -> str:
         if self.verdict == EQUIVALENT:
             return f"{EQUIVALENT} {self.margin:.3g}"
-        if self.verdict == SMALLER:
-            return f"{SMALLER}: A >= {self.paper_ratio:.3g} B ruled out; direction undecided"
         if self.verdict == INCONCLUSIVE:
             if self.n_a < MIN_SEEDS or self.n_b < MIN_SEEDS:
                 return f"{INCONCLUSIVE} (needs >= {MIN_SEEDS} seeds per side)"
@@ -196,11 +194,9 @@ def _boot_means_vars(a, b, resamples, rng):
     return ra.mean(1), ra.var(1, ddof=1), rb.mean(1), rb.var(1, ddof=1)
 
 
-def _boot_t(a, b, resamples, seed, level, symmetric=True) -> Tuple[float, float, str]:
-    wl, wh, se, q_welch = _welch(a, b, level)
+def _t_star(a, b, resamples, seed) -> np.ndarray:
+    """The resamples' Welch t statistics t* = (d* - d) / se* (+-inf where a resample has no spread)."""
     d = float(a.mean() - b.mean())
-    if se == 0:  # every resample gives the same difference
-        return d, d, NO_SPREAD
     ma, va, mb, vb = _boot_means_vars(a, b, resamples, np.random.default_rng(seed))
     scale = max(float(np.abs(a).max()), float(np.abs(b).max()))
     dev = (ma - mb) - d
@@ -210,6 +206,15 @@ def _boot_t(a, b, resamples, seed, level, symmetric=True) -> Tuple[float, float,
     t = np.zeros_like(dev)
     t[~flat] = dev[~flat] / se_star[~flat]
     t[flat & (dev != 0)] = np.copysign(np.inf, dev[flat & (dev != 0)])
+    return t
+
+
+def _boot_t(a, b, resamples, seed, level, symmetric=True) -> Tuple[float, float, str]:
+    wl, wh, se, q_welch = _welch(a, b, level)
+    d = float(a.mean() - b.mean())
+    if se == 0:  # every resample gives the same difference
+        return d, d, NO_SPREAD
+    t = _t_star(a, b, resamples, seed)
     if symmetric:
         qs = np.abs(t)
         if np.mean(np.isinf(qs)) >= 1 - level:  # the quantile itself would be infinite
@@ -225,6 +230,99 @@ def _boot_t(a, b, resamples, seed, level, symmetric=True) -> Tuple[float, float,
     q_lo = float(np.quantile(fin, _finite_rank_at(p_lo, len(t), n_neg, len(fin))))
     q_hi = float(np.quantile(fin, _finite_rank_at(p_hi, len(t), n_neg, len(fin))))
     return d - q_hi * se, d - q_lo * se, "bootstrap-t"
+
+
+def _p_sym(a, b, resamples, seed, level, z: float) -> float:
+    """The p-value of the symmetric bootstrap-t interval at distance z (in Welch standard errors) from the
+    difference: the smallest alpha at which the 1 - alpha interval (``_boot_t``, same resamples) no longer
+    reaches a point z se away. The interval is d +- max(q_boot, q_welch) se, so this is the larger of the
+    two p-values, Welch's 2 P(T_df > z) and the share of resamples with |t*| >= z (numpy's linear quantile,
+    inverted); where the 95% interval falls back to Welch's (>= 5% of the |t*| infinite), Welch's alone."""
+    from scipy.stats import t as t_dist
+
+    if z <= 0:
+        return 1.0
+    va, vb = a.var(ddof=1) / len(a), b.var(ddof=1) / len(b)
+    df = (va + vb) ** 2 / ((va ** 2 / (len(a) - 1) if va else 0.0) + (vb ** 2 / (len(b) - 1) if vb else 0.0))
+    p_welch = float(2 * t_dist.sf(z, df))
+    qs = np.abs(_t_star(a, b, resamples, seed))
+    frac_inf = float(np.mean(np.isinf(qs)))
+    if frac_inf >= 1 - level or p_welch < frac_inf:
+        return p_welch
+    fin = np.sort(qs[np.isfinite(qs)])
+    # the largest level L whose quantile of |t*| is still below z: its position in the sorted sample
+    pos = float(np.interp(z, fin, np.arange(len(fin)))) if z <= fin[-1] else len(fin) - 1.0
+    if z <= fin[0]:
+        pos = 0.0
+    p_boot = 1.0 - pos / max(len(qs) - 1, 1)
+    return max(p_boot, p_welch)
+
+
+def _p_values(x, y, resamples, seed, level, margin) -> Tuple[float, float]:
+    """(p of A = B, p of equivalence within +-margin), both inverted from the interval ``compare`` uses."""
+    d = float(x.mean() - y.mean())
+    se = math.sqrt(x.var(ddof=1) / len(x) + y.var(ddof=1) / len(y))
+    if se == 0:  # the interval is the point d
+        return float(d == 0), float(abs(d) > margin)
+    return (_p_sym(x, y, resamples, seed, level, abs(d) / se),
+            _p_sym(x, y, resamples, seed, level, (margin - abs(d)) / se) if margin > abs(d) else 1.0)
+
+
+def ratio_ci(a: Sequence[float], b: Sequence[float], resamples: int = 10_000, seed: int = 0,
+             level: float = 0.95, paired: bool = False) -> Tuple[float, float, float]:
+    """mean(A) / mean(B) and its interval: the ratios rho whose contrast mean(A) - rho mean(B) the
+    symmetric bootstrap-t interval (paired: on a - rho b) does not exclude, a Fieller-type inversion of the
+    difference's own interval (module doc). NaN without a positive mean(B) or with < MIN_SEEDS per side;
+    an end is +-inf where no rho excludes it."""
+    from scipy.optimize import brentq
+
+    a, b = _as_scores(a), _as_scores(b)
+    if min(len(a), len(b)) < MIN_SEEDS or not b.mean() > 0:
+        return math.nan, math.nan, math.nan
+    if paired and len(a) != len(b):
+        raise ValueError(f"paired sides need one value per seed on each side (got {len(a)} and {len(b)})")
+    rho = float(a.mean() / b.mean())
+
+    def bound(r: float, end: int) -> float:  # the contrast interval's low (0) or high (1) end at ratio r
+        x, y = (a - r * b, np.zeros_like(a)) if paired else (a, r * b)
+        return _diff_ci(x, y, resamples, seed, level, BOOT_T)[end]
+
+    def limit(end: int, sign: int) -> float:
+        # the contrast falls as r grows: below the interval its low end is > 0, above it its high end < 0;
+        # step outward from rho (where the contrast is 0) until it is, then find the crossing
+        inner, step = rho, max(abs(rho), 1.0) / 8
+        for _ in range(40):
+            outer = inner + sign * step
+            if (bound(outer, end) > 0) if sign < 0 else (bound(outer, end) < 0):
+                return float(brentq(lambda r: bound(r, end), min(inner, outer), max(inner, outer),
+                                    xtol=1e-6 * max(abs(rho), 1.0)))
+            inner, step = outer, step * 2
+        return sign * math.inf
+    return rho, limit(0, -1), limit(1, 1)
+
+
+def holm(p: Sequence[float]) -> np.ndarray:
+    """Holm's step-down adjusted p-values (NaN entries stay NaN and do not count)."""
+    p = np.asarray(p, float)
+    out = np.full_like(p, np.nan)
+    ok = np.flatnonzero(np.isfinite(p))
+    if ok.size:
+        order = ok[np.argsort(p[ok], kind="stable")]
+        m = ok.size
+        out[order] = np.minimum(np.maximum.accumulate((m - np.arange(m)) * p[order]), 1.0)
+    return out
+
+
+def benjamini_hochberg(p: Sequence[float]) -> np.ndarray:
+    """Benjamini-Hochberg adjusted p-values (scipy's ``false_discovery_control``; NaN entries stay NaN)."""
+    from scipy.stats import false_discovery_control
+
+    p = np.asarray(p, float)
+    out = np.full_like(p, np.nan)
+    ok = np.isfinite(p)
+    if ok.any():
+        out[ok] = false_discovery_control(p[ok], method="bh")
+    return out
 
 
 def _finite_rank(qs: np.ndarray, p: float) -> float:
@@ -331,15 +429,14 @@ def multiplicity_note(n_claims: int, level: float = 0.95) -> str:
     alpha = 1 - level
     tested = f"{n} claim was tested, at {level:.0%}" if n == 1 else f"{n} claims were tested, each at {level:.0%}"
     return (f"{tested}; with {n} independent test{'s' if n != 1 else ''} about {alpha * n:.2g} would exclude 0 "
-            f"by chance if no difference existed (no correction applied; Bonferroni would use "
-            f"{bonferroni_level(n, level):.2%} per claim).")
+            f"by chance if no difference existed, hence the adjusted p-values (Bonferroni over all of them "
+            f"would use {bonferroni_level(n, level):.2%} per claim).")
 
 
 def compare(a: Sequence[float], b: Sequence[float], margin: float, resamples: int = 10_000,
-            seed: int = 0, level: float = 0.95, paired: bool = False,
-            paper_ratio: Optional[float] = None) -> Comparison:
-    """Does A beat B? The difference A - B with its CI, and one verdict (see the module doc). ``paired``:
-    a[i] and b[i] adapted the same prior (same seed); ``paper_ratio``: the A/B the paper reports."""
+            seed: int = 0, level: float = 0.95, paired: bool = False) -> Comparison:
+    """Does A beat B? The difference A - B with its CI, one verdict and the p-values of its tests (see the
+    module doc). ``paired``: a[i] and b[i] adapted the same prior (same seed)."""
     a, b = _as_scores(a), _as_scores(b)
     if len(a) == 0 or len(b) == 0:
         raise ValueError("compare needs at least one value per side")
@@ -348,33 +445,25 @@ def compare(a: Sequence[float], b: Sequence[float], margin: float, resamples: in
     mean_a, mean_b = float(a.mean()), float(b.mean())
     diff = mean_a - mean_b
     p_imp = prob_improvement(a, b)
-    rho = math.nan if paper_ratio is None else float(paper_ratio)
     if min(len(a), len(b)) < MIN_SEEDS:
         return Comparison(len(a), len(b), mean_a, mean_b, diff, math.nan, math.nan, p_imp, margin,
-                          INCONCLUSIVE, None, ci_method="none (too few seeds)", paired=paired, paper_ratio=rho)
-
-    def samples(k: float):
-        """The two samples whose difference of means is mean(A) - k mean(B); paired: the one sample of
-        per-seed differences beside zeros, i.e. the two-sample code with B = 0 (module doc)."""
-        return (a - k * b, np.zeros_like(a)) if paired else (a, k * b)
-
-    x, y = samples(1.0)
+                          INCONCLUSIVE, None, ci_method="none (too few seeds)", paired=paired)
+    # paired: the one sample of per-seed differences beside zeros, i.e. the two-sample code with B = 0
+    x, y = (a - b, np.zeros_like(a)) if paired else (a, b)
     lo, hi, how = _diff_ci(x, y, resamples, seed, level, BOOT_T)
     wl, wh, _, _ = _welch(x, y, level)
-    vs_paper = math.nan if math.isnan(rho) else _diff_ci(*samples(rho), resamples, seed, level, BOOT_T)[1]
+    p, p_eq = _p_values(x, y, resamples, seed, level, margin)
     if lo > 0:
         verdict = REPRODUCED
     elif hi < 0:
         verdict = CONTRADICTED
     elif -margin <= lo and hi <= margin:
         verdict = EQUIVALENT
-    elif vs_paper < 0:
-        verdict = SMALLER
     else:
         verdict = INCONCLUSIVE
-    need = seeds_to_decide(x, y, margin) if verdict in (INCONCLUSIVE, SMALLER) else None
+    need = seeds_to_decide(x, y, margin) if verdict == INCONCLUSIVE else None
     return Comparison(len(a), len(b), mean_a, mean_b, diff, lo, hi, p_imp, margin, verdict, need, wl, wh,
-                      ("paired " if paired else "") + how, paired, rho, vs_paper)
+                      ("paired " if paired else "") + how, paired, p, p_eq)
 
 
 # ---- Coverage by simulation (the module doc's table) -------------------------------------------------
