@@ -27,7 +27,7 @@ each interval, n seeds per side (``null``: both sides from the same distribution
 wider member of the family: lognormal(0.5, 1) vs lognormal(0, 1),
 exponential mean 2 vs 1, zero-inflated Poisson 30% zeros lambda 8 vs 5, and "learned or not" success
 counts out of 20, a mixture of Binomial(20, 0.7) and Binomial(20, 0.1), 70% vs 50% learned); measured
-with ``python -m maniskill_dualher.analysis.stats --reps 2000 --resamples 2000``::
+with ``python bench/ci_coverage.py --reps 2000 --resamples 2000``::
 
     case  data                  n         pct        BCa      welch     boot-t sym boot-t  | median width / Welch's
     null  lognormal             4       0.846      0.817      0.982      0.978      0.989  | 0.60 0.63 1.00 1.25 1.35
@@ -93,29 +93,49 @@ same symmetric bootstrap-t on the one sample x (resampling seeds, studentized by
 at the paired t interval (reported as the Welch columns), and seeds_to_decide uses var(x) in place of
 s_A^2 + s_B^2. It is the same code path as the two-sample interval with B = 0 (one stratum, df = n - 1).
 Pairing is decided from the data (``claims.paired``), never by the outcome. Coverage, measured as above with
-a shared prior term per seed (``python -m maniskill_dualher.analysis.stats --paired --reps 1000 --resamples
+a shared prior term per seed (``python bench/ci_coverage.py --paired --reps 1000 --resamples
 1000 --n 6 16 32 --methods percentile welch-t "symmetric bootstrap-t"``, CPU B): the chosen interval covers
 0.959-0.989 at n = 6, 0.936-0.980 at n = 16 and 0.936-0.976 at n = 32 over the same 8 cases (paired t:
 0.929-0.971; percentile 0.839-0.942); the lowest, 0.936, is the exponential "diff" case, where the
 unpaired interval also sits at 0.944. Median width 1.01-1.15x the paired t interval's at n >= 16.
 
-The paper's effect size
------------------------
-Where the paper reports both sides' numbers, the claim carries the paper's ratio rho = A/B (a lower bound
-where the paper says "< x"). A direction the CI cannot settle can still answer the replication question:
-the same interval on the contrast mean(A) - rho mean(B) (B's scores scaled by rho; paired likewise) lying
-below 0 rules out A >= rho B at 95%, i.e. the paper's effect is larger than anything our data allows
-("small telescopes", Simonsohn 2015; LeBel et al. 2018's "inconsistent with the original effect size").
-That verdict, **smaller than the paper's**, replaces *inconclusive* only: it says the effect the paper
-reports is ruled out and that the sign is undecided. A ratio is our closest scale-free reading of the paper's
-numbers; it is not budget-free (the paper's counts come from a far larger budget).
+Partly shared priors are not paired: ``claims.paired_seeds`` pairs a claim on the seeds of its smaller side
+only when every one of them adapted the same source-stage runs on the other side (e.g. ``split``'s 8 seeds
+beside the paper arm's 32, or ``shared_a``, where both methods adapt SAC+HER+PER's prior); the other side's
+remaining seeds are then left out. A claim whose priors are shared for some seeds only (``r_matched``: 8 of
+32) stays unpaired on all its seeds.
 
-Each claim's CI is at 95%; with many claims some exclude 0 by chance: ``multiplicity_note`` says how many
-to expect, ``bonferroni_level`` gives the per-claim level a Bonferroni correction would use.
+p-values, and the correction for many claims
+--------------------------------------------
+Each claim's verdict is read off its 95% interval. Its p-value (``Comparison.p_value``) is that same
+interval inverted: the smallest alpha at which the 1 - alpha interval (same resamples, same Welch floor)
+no longer reaches 0. As the interval is d +- max(q_boot, q_welch) se, it is the larger of Welch's two-sided
+p (paired: the paired t test's) and the bootstrap-t p, the share of resamples with |t*| >= |d| / se (both
+``_p_sym``); so p < 0.05 exactly when the 95% interval excludes 0 (tested). ``p_equivalence`` inverts the
+equivalence verdict the same way (the level at which the interval just fits inside +-margin).
+
+``claims.claim_rows`` adjusts the p-values within each family of claims, the paper's (a)-(h') and the
+ablations, by Holm (``holm``: step-down, controls the chance of any false "excludes 0" in the family at
+5%) and by Benjamini-Hochberg (``benjamini_hochberg``: scipy's ``false_discovery_control``, controls the
+expected share of false ones). The verdict column stays the 95% interval's; ``survives_holm`` says whether
+a decided verdict still holds after Holm (direction verdicts: Holm-adjusted p < 0.05; an equivalence
+verdict: its own p times the family's size, Bonferroni, which is never less strict than Holm). The README
+leans only on verdicts that survive Holm.
+
+The paper's numbers
+-------------------
+Where the paper reports both sides' numbers (Tables 4 and 5: one run per side, no spread) the claim
+carries the paper's ratio rho = A/B (a lower bound where the paper says "< x"), and ``ratio_ci`` puts our
+ratio of means beside it: mean(A)/mean(B) with the ratios r whose contrast mean(A) - r mean(B) the same
+symmetric bootstrap-t interval does not exclude (paired: on a - r b), a Fieller-type inversion of the
+claim's own interval (same resamples for every r, so the ends are found by root search). Its upper end
+below rho says an effect of the paper's size is excluded in this setting; that is a statement about size,
+not a verdict: the direction verdict stays the difference's ("small telescopes", Simonsohn 2015). A ratio is
+our closest scale-free reading of the paper's numbers; it is not budget-free (the paper's counts come from
+a far larger budget, and the ratio moves with the budget: ``budget.py``).
 """
 from __future__ import annotations
 
-import argparse
 import math
 from dataclasses import dataclass
 from typing import Callable, Dict, Optional, Sequence, Tuple
@@ -237,7 +257,8 @@ def _p_sym(a, b, resamples, seed, level, z: float) -> float:
     difference: the smallest alpha at which the 1 - alpha interval (``_boot_t``, same resamples) no longer
     reaches a point z se away. The interval is d +- max(q_boot, q_welch) se, so this is the larger of the
     two p-values, Welch's 2 P(T_df > z) and the share of resamples with |t*| >= z (numpy's linear quantile,
-    inverted); where the 95% interval falls back to Welch's (>= 5% of the |t*| infinite), Welch's alone."""
+    inverted); where the interval at ``level`` falls back to Welch's (>= 1 - level of the |t*| infinite),
+    Welch's alone. So p < 1 - level exactly when the interval at ``level`` excludes that point."""
     from scipy.stats import t as t_dist
 
     if z <= 0:
@@ -247,7 +268,7 @@ def _p_sym(a, b, resamples, seed, level, z: float) -> float:
     p_welch = float(2 * t_dist.sf(z, df))
     qs = np.abs(_t_star(a, b, resamples, seed))
     frac_inf = float(np.mean(np.isinf(qs)))
-    if frac_inf >= 1 - level or p_welch < frac_inf:
+    if frac_inf >= 1 - level:  # the interval at this level is Welch's
         return p_welch
     fin = np.sort(qs[np.isfinite(qs)])
     # the largest level L whose quantile of |t*| is still below z: its position in the sorted sample
@@ -466,22 +487,6 @@ def compare(a: Sequence[float], b: Sequence[float], margin: float, resamples: in
                       ("paired " if paired else "") + how, paired, p, p_eq)
 
 
-# ---- Coverage by simulation (the module doc's table) -------------------------------------------------
-# Each entry: (sampler of B's distribution, its mean, sampler of A's distribution in the "diff" case, its mean).
-SKEWED: Dict[str, Tuple[Callable, float, Callable, float]] = {
-    "lognormal": (lambda r, n: r.lognormal(0.0, 1.0, n), math.exp(0.5),
-                  lambda r, n: r.lognormal(0.5, 1.0, n), math.exp(1.0)),
-    "exponential": (lambda r, n: r.exponential(1.0, n), 1.0,
-                    lambda r, n: r.exponential(2.0, n), 2.0),
-    "zero-infl. Poisson": (lambda r, n: (r.random(n) >= 0.3) * r.poisson(5.0, n).astype(float), 0.7 * 5,
-                           lambda r, n: (r.random(n) >= 0.3) * r.poisson(8.0, n).astype(float), 0.7 * 8),
-    "learned or not /20": (lambda r, n: np.where(r.random(n) < 0.5, r.binomial(20, 0.7, n),
-                                                 r.binomial(20, 0.1, n)).astype(float), 0.5 * 14 + 0.5 * 2,
-                           lambda r, n: np.where(r.random(n) < 0.7, r.binomial(20, 0.7, n),
-                                                 r.binomial(20, 0.1, n)).astype(float), 0.7 * 14 + 0.3 * 2),
-}
-
-
 # --------------------------------------------------------------------------- aggregates across tasks (rliable's)
 def iqm(x: np.ndarray, axis=None) -> np.ndarray:
     """Interquartile mean: the mean of the middle 50% (rliable's robust aggregate; scipy's trim_mean)."""
@@ -504,49 +509,3 @@ def aggregate_ci(scores: np.ndarray, fn, resamples: int = 2_000, seed: int = 0, 
 def performance_profile(scores: np.ndarray, taus: np.ndarray) -> np.ndarray:
     """Fraction of runs (all tasks and seeds) scoring above each threshold tau (rliable's run-score profile)."""
     return (scores.reshape(-1)[None, :] > taus[:, None]).mean(axis=1)
-
-
-def coverage(dist: str, n: int, methods: Sequence[str], reps: int, resamples: int, shift: bool = False,
-             seed: int = 0, paired: bool = False) -> Dict[str, Tuple[float, float]]:
-    """{method: (coverage of the true mean difference, median width)} over ``reps`` simulated pairs.
-    ``paired``: seed s of both sides shares a prior term (3x a draw of B's distribution) and the interval is
-    taken on the per-seed differences, as ``compare(paired=True)`` does."""
-    gen_b, mu_b, gen_a, mu_a = SKEWED[dist]
-    if not shift:
-        gen_a, mu_a = gen_b, mu_b
-    rng = np.random.default_rng(seed)
-    pairs = [(gen_a(rng, n), gen_b(rng, n)) for _ in range(reps)]
-    if paired:
-        pairs = [(a - b, np.zeros(n)) for a, b in ((a + c, b + c) for (a, b), c in
-                                                    zip(pairs, (3 * gen_b(rng, n) for _ in range(reps))))]
-    out = {}
-    for m in methods:
-        cis = np.array([_diff_ci(a, b, resamples, i, 0.95, m)[:2] for i, (a, b) in enumerate(pairs)])
-        out[m] = (float(np.mean((cis[:, 0] <= mu_a - mu_b) & (mu_a - mu_b <= cis[:, 1]))),
-                  float(np.median(cis[:, 1] - cis[:, 0])))
-    return out
-
-
-def _main(argv=None) -> None:
-    p = argparse.ArgumentParser(description="Coverage of the difference-of-means CIs on skewed data.")
-    p.add_argument("--reps", type=int, default=2000)
-    p.add_argument("--resamples", type=int, default=2000)
-    p.add_argument("--n", type=int, nargs="+", default=[4, 6, 16])
-    p.add_argument("--methods", nargs="+", default=["percentile", "BCa", WELCH, "bootstrap-t", BOOT_T])
-    p.add_argument("--paired", action="store_true", help="both sides share each seed's prior (module doc)")
-    args = p.parse_args(argv)
-    short = {"percentile": "pct", "BCa": "BCa", WELCH: "welch", "bootstrap-t": "boot-t", BOOT_T: "sym boot-t"}
-    print(f"{'case':<5} {'data':<19} {'n':>3}  " + " ".join(f"{short.get(m, m):>10}" for m in args.methods)
-          + "  | median width / Welch's")
-    for shift in (False, True):
-        for dist in SKEWED:
-            for n in args.n:
-                res = coverage(dist, n, args.methods, args.reps, args.resamples, shift, paired=args.paired)
-                w_welch = res[WELCH][1] if WELCH in res else math.nan
-                print(f"{'diff' if shift else 'null':<5} {dist:<19} {n:>3}  "
-                      + " ".join(f"{res[m][0]:>10.3f}" for m in args.methods)
-                      + "  | " + " ".join(f"{res[m][1] / w_welch:.2f}" for m in args.methods), flush=True)
-
-
-if __name__ == "__main__":
-    _main()
