@@ -10,7 +10,6 @@ Add a claim: one ``Claim(...)`` in ``CLAIMS``; it is "not measured" until a swee
 """
 from __future__ import annotations
 
-import math
 from collections import Counter
 from dataclasses import dataclass
 from typing import Dict, List, Optional, Sequence, Tuple
