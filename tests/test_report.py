@@ -7,6 +7,7 @@ import json
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from maniskill_dualher import report
@@ -345,6 +346,169 @@ def test_sides_are_paired_only_when_every_seed_adapted_the_same_prior_runs():
     # one seed's prior trained twice (another sweep): not the same prior, so not paired
     other = [r for r in same if not (r["seed"] == "3" and r["arm"] == "0.5/0.5")] + rows("0.5/0.5", 3, "sw2/s3", 13)
     assert not claims_mod.paired(other, c)
-    # seed sets that differ, or sides without source stages (single-task, scratch), are not paired either
-    assert not claims_mod.paired([r for r in same if not (r["seed"] == "0" and r["arm"] == "0.6/0.4")], c)
+    # a side with fewer seeds, each on the other side's prior: paired on those seeds alone
+    fewer = [r for r in same if not (r["seed"] == "0" and r["arm"] == "0.6/0.4")]
+    assert claims_mod.paired_seeds(fewer, c) == [1, 2, 3]
+    row = claims_mod.claim_rows(fewer, 200, [c])[0]
+    assert (row["n_a"], row["n_b"], row["paired"]) == (3, 3, "yes")
+    # seed sets neither of which holds the other, or sides without source stages (scratch), are not paired
+    shifted = fewer + rows("0.6/0.4", 4, "sw/s4", 14)
+    assert not claims_mod.paired(shifted, c)
     assert not claims_mod.paired([r for r in same if r["role"] == "adapt"], c)
+
+
+def _score(exp, arm, method, seed, value, metric="successful_train_episodes", role="adapt", run=None,
+           machine="CPU B", stage="2"):
+    return {"experiment": exp, "arm": arm, "method": method, "task": "CloseMicrowave-v1", "seed": str(seed),
+            "stage": stage, "role": role, "metric": metric, "value": str(value), "machine": machine,
+            "run": run or f"{exp}/{arm}/{method}/s{seed}/{role}", "chain": "", "variant": ""}
+
+
+def test_a_shared_prior_pairs_both_methods():
+    """shared_prior: both methods adapt SAC+HER+PER's source stages, whose cells carry the prior's method."""
+    c = next(c for c in claims_mod.CLAIMS if c.key == "shared_a")
+    scores = []
+    for s in range(5):
+        scores.append(_score("shared_prior", "shared", "sac_her_per", s, 1, role="source", run=f"p/s{s}", stage="0"))
+        scores += [_score("shared_prior", "shared", "dual_buffer", s, 50 + 10 * s + s % 2),
+                   _score("shared_prior", "shared", "sac_her_per", s, 60 + 10 * s)]
+    row = claims_mod.claim_rows(scores, 500, [c])[0]
+    # the prior's spread (10 per seed) cancels: the per-seed differences are -10 or -9
+    assert row["paired"] == "yes" and row["verdict"] == "contradicted" and row["diff_ci95_high"] < -8
+
+
+def test_adjusted_p_values_within_each_family_and_machine_balance():
+    keys = ("a", "h", "e_off", "r_matched", "warm_a")
+    cs = [c for c in claims_mod.CLAIMS if c.key in keys]
+    rng = np.random.default_rng(0)
+    scores = []
+    for c in cs:
+        shift = {"a": 30, "h": 4, "e_off": 5, "r_matched": 30, "warm_a": 0}[c.key]
+        for s in range(8):
+            scores.append(_score(c.a.experiment, c.a.arm, c.a.method, s, 100 + shift + rng.normal(0, 8),
+                                 metric=c.metric, machine="CPU A" if c.key == "warm_a" and s < 4 else "CPU B"))
+            scores.append(_score(c.b.experiment, c.b.arm, c.b.method, s, 100 + rng.normal(0, 8), metric=c.metric))
+    rows = {r["claim"]: r for r in claims_mod.claim_rows(scores, 1000, cs)}
+    from maniskill_dualher.analysis import stats
+    for fam in ("paper", "ablation"):
+        fam_rows = [r for r in rows.values() if r["group"] == fam]
+        p = [r["p_value"] for r in fam_rows]
+        assert [r["p_holm"] for r in fam_rows] == pytest.approx(list(stats.holm(p)))
+        assert [r["p_bh"] for r in fam_rows] == pytest.approx(list(stats.benjamini_hochberg(p)))
+    # Holm over the family of 2 (a, h), not all 5 claims: h's p times 2 at most
+    assert rows["h"]["p_holm"] <= 2 * max(rows["h"]["p_value"], rows["a"]["p_value"]) + 1e-12
+    for r in rows.values():
+        decided = not r["verdict"].startswith("inconclusive")
+        assert (r.get("survives_holm", "") != "") == decided
+        if decided:
+            assert (r["survives_holm"] == "yes") == (r["p_holm"] < 0.05)
+    # warm_a's A side ran on two machines, its B side on one
+    assert rows["warm_a"]["machine_balanced"] == "no" and rows["a"]["machine_balanced"] == "yes"
+    assert rows["warm_a"]["machines_by_side"] == "A: CPU A 4, CPU B 4 | B: CPU B 8"
+    # the paper's numbers: a ratio of means and what it says about the paper's size, not a verdict
+    assert rows["a"]["ratio"] == pytest.approx(rows["a"]["mean_a"] / rows["a"]["mean_b"])
+    assert rows["a"]["paper_size"] == ("an effect of the paper's size (x5.56 or more) is excluded in this "
+                                       "setting; the paper reports no spread")
+    assert "ratio" not in rows["h"]
+
+
+def test_mechanism_and_budget_claims_read_not_measured_until_their_runs_exist():
+    rows = {r["claim"]: r for r in claims_mod.claim_rows([], 200)}
+    for key in ("scratch_e_off", "scratch_e_batches", "scratch_r_updates", "scratch_e_on_starved",
+                "adapt_r_updates", "adapt_e_on_starved", "matched_prior", "matched_a"):
+        assert rows[key]["verdict"] == "not measured (runs missing)", key
+    assert rows["budget_trend"]["verdict"].startswith("not measured (needs >= 3 budgets")
+
+
+def test_mechanism_claims_on_synthetic_scores():
+    """From scratch: E off = SAC+HER+PER, E's batches cost nothing, R's lost updates cost 40."""
+    rng = np.random.default_rng(1)
+    level = {("mechanism", "e_off", "dual_buffer"): 100, ("scratch", "paper", "sac_her_per"): 100,
+             ("mechanism", "r_matched", "dual_buffer"): 100, ("mechanism", "r_starved", "dual_buffer"): 60,
+             ("scratch", "paper", "dual_buffer"): 60}
+    scores = [_score(e, a, m, s, v + rng.normal(0, 3)) for (e, a, m), v in level.items() for s in range(16)]
+    keys = ("scratch_e_off", "scratch_e_batches", "scratch_r_updates", "scratch_e_on_starved")
+    rows = {r["claim"]: r for r in claims_mod.claim_rows(scores, 1000, [c for c in claims_mod.CLAIMS
+                                                                       if c.key in keys])}
+    assert rows["scratch_e_off"]["verdict"].startswith("no difference larger than")
+    assert rows["scratch_e_off"]["survives_holm"] == "yes" and rows["scratch_e_off"]["p_equivalence"] < 0.01
+    assert rows["scratch_e_batches"]["verdict"].startswith("no difference larger than")
+    assert rows["scratch_r_updates"]["verdict"] == "contradicted"
+    assert rows["scratch_e_on_starved"]["verdict"].startswith("no difference larger than")
+    assert all(r["paired"] == "no" for r in rows.values())      # from scratch: no prior to share
+
+
+def test_budget_trend_and_curve_on_synthetic_scores(tmp_path):
+    """The dual/HER ratio doubles with every doubling of the budget: slope 1 in log2 units, supported;
+    with a flat ratio the trend is undecided; at 4x regime/long fills the seeds budget/x4 lacks."""
+    from maniskill_dualher.analysis import budget, plots_budget
+    rng = np.random.default_rng(2)
+
+    def make(ratio_of):
+        out = []
+        for factor, cells in budget.BUDGETS:
+            exp, arm = cells[-1]
+            for s in range(12):
+                her = 100 * factor * np.exp(rng.normal(0, 0.1))
+                out.append(_score(exp, arm, "sac_her_per", s, her))
+                out.append(_score(exp, arm, "dual_buffer", s, her * ratio_of(factor) * np.exp(rng.normal(0, 0.1))))
+                for m, v in (("sac_her_per", 0.9), ("dual_buffer", min(1.0, 0.3 * factor))):
+                    out.append(_score(exp, arm, m, s, v, metric="final_eval_success_rate"))
+        return out
+    rising = make(lambda f: 0.25 * f)
+    row = claims_mod.trend_row(rising, 2000)
+    assert row["verdict"] == "supported" and row["diff"] == pytest.approx(1.0, abs=0.1)
+    assert row["diff_ci95_low"] > 0.8 and row["p_value"] < 0.001
+    assert row["mean_b"] == pytest.approx(0.25, rel=0.1) and row["mean_a"] == pytest.approx(2.0, rel=0.1)
+    flat = claims_mod.trend_row(make(lambda f: 0.5), 2000)
+    assert flat["verdict"].startswith("inconclusive") and flat["diff_ci95_low"] < 0 < flat["diff_ci95_high"]
+    rows = budget.budget_rows(rising, 500)
+    assert [r["budget_factor"] for r in rows] == [1.0, 2.0, 4.0, 8.0]
+    assert [r["count_order"] for r in rows] == ["sac_her_per ahead", "sac_her_per ahead", "undecided",
+                                                "dual_buffer ahead"]
+    assert rows[0]["final_order"] == "sac_her_per ahead" and rows[3]["final_order"] == "dual_buffer ahead"
+    assert "the order changes within the range measured" in budget.order_sentence(rows)
+    assert rows[2]["cells"] == "budget/x4 or regime/long" and rows[2]["n_dual"] == 12
+    assert plots_budget.plot_budget(rows, tmp_path / "b.png") and (tmp_path / "b.png").read_bytes()[:4] == b"\x89PNG"
+    assert not plots_budget.plot_budget([], tmp_path / "none.png") and not (tmp_path / "none.png").exists()
+    # two budgets only: not measured
+    two = [r for r in rising if r["arm"] in ("paper", "x2")]
+    assert claims_mod.trend_row(two, 200)["verdict"] == ("not measured (needs >= 3 budgets with >= 3 seeds per "
+                                                         "method; have 1x, 2x)")
+
+
+def test_scores_hold_each_run_cell_and_metric_once(folder, tmp_path, capsys):
+    """A shared prior's source run lists the same cell once per adapting method: scored once. A committed
+    scores.csv written before (repeats) is read without them and rewritten once; a key holding two values
+    is refused."""
+    from maniskill_dualher.analysis.runs import SCORE_COLUMNS, score_key
+    d = next(folder.glob("runs/chain/sac_her_per-s0/stage0"))
+    cell = json.loads((d / "cell.json").read_text())["cells"][0]
+    (d / "cell.json").write_text(json.dumps({"cells": [cell, dict(cell)]}))
+    report.build_report(folder)
+    scores = _table(folder / "scores.csv")
+    keys = [score_key(r) for r in scores]
+    assert len(keys) == len(set(keys)) and sum(r["run"].endswith("sac_her_per-s0/stage0") for r in scores) > 0
+    curves = _table(folder / "curves.csv")
+    assert len({tuple(r.values()) for r in curves}) == len(curves)
+    ref = tmp_path / "ref"
+    ref.mkdir()
+    for f in folder.iterdir():
+        if f.is_file():
+            shutil.copy2(f, ref / f.name)
+    clean = (ref / "scores.csv").read_bytes()
+    lines = clean.decode().splitlines(keepends=True)
+    (ref / "scores.csv").write_text("".join(lines + lines[1:4]))         # three rows written twice
+    assert report.main([str(ref)]) == 0
+    assert (ref / "scores.csv").read_bytes() == clean
+    assert (ref / "claims.csv").read_bytes() == (folder / "claims.csv").read_bytes()
+    bad = lines[1].split(",")
+    bad[SCORE_COLUMNS.index("value")] = "12345"
+    (ref / "scores.csv").write_text("".join(lines + [",".join(bad)]))
+    before = {p: p.read_bytes() for p in ref.iterdir()}
+    capsys.readouterr()
+    assert report.main([str(ref)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "twice with different values" in err[0]
+    assert {p: p.read_bytes() for p in ref.iterdir()} == before
+

@@ -153,7 +153,7 @@ def test_degenerate_inputs():
 def test_multiplicity_note_and_bonferroni():
     note = stats.multiplicity_note(30)
     assert note.startswith("30 claims were tested, each at 95%") and "about 1.5 would exclude 0 by chance" in note
-    assert "no correction applied" in note and note.endswith(".")
+    assert "hence the adjusted p-values" in note and note.endswith(".")
     assert stats.bonferroni_level(10) == pytest.approx(0.995)
     assert stats.bonferroni_level(1) == pytest.approx(0.95)
     assert stats.multiplicity_note(1).startswith("1 claim was tested")
@@ -192,17 +192,66 @@ def test_paired_interval_is_the_one_sample_interval_of_the_per_seed_differences(
         stats.compare(a, b[:-1], 0.1, paired=True)
 
 
-def test_the_papers_effect_size_is_ruled_out_only_when_the_contrast_interval_says_so():
+def test_ratio_of_means_interval_is_the_contrast_interval_inverted():
     rng = np.random.default_rng(4)
     a, b = rng.normal(100, 20, 32), rng.normal(100, 20, 32)     # no difference, sign undecided at this n
-    small = stats.compare(a, b, margin=1, paper_ratio=1.6)
-    assert small.ci_low < 0 < small.ci_high and small.verdict == stats.SMALLER
-    assert small.vs_paper_high < 0
-    assert small.verdict_text() == "smaller than the paper's: A >= 1.6 B ruled out; direction undecided"
-    # the contrast is the same interval on A - rho B: rho = 1 gives back the difference's interval
-    assert stats.compare(a, b, 1, paper_ratio=1.0).vs_paper_high == pytest.approx(small.ci_high)
-    # an effect as large as the paper's is not ruled out; without a paper ratio nothing changes
-    assert stats.compare(a, b, 1, paper_ratio=1.05).verdict == stats.INCONCLUSIVE
-    assert stats.compare(a, b, 1).verdict == stats.INCONCLUSIVE
-    # a decided direction keeps its verdict whatever the paper's size
-    assert stats.compare(a + 30, b, 1, paper_ratio=5.0).verdict == stats.REPRODUCED
+    r, lo, hi = stats.ratio_ci(a, b, 2000)
+    assert r == pytest.approx(a.mean() / b.mean()) and lo < 1 < hi and lo < r < hi
+    # at each end the contrast mean(A) - rho mean(B)'s interval just touches 0; inside it holds 0, outside not
+    assert stats.diff_ci(a, lo * b, 2000)[0] == pytest.approx(0, abs=1e-3)
+    assert stats.diff_ci(a, hi * b, 2000)[1] == pytest.approx(0, abs=1e-3)
+    assert stats.diff_ci(a, 1.02 * hi * b, 2000)[1] < 0 < stats.diff_ci(a, 0.98 * hi * b, 2000)[1]
+    # rho = 1 is the difference's own interval: it holds 1 exactly when the difference's holds 0
+    c = stats.compare(a, b, 1, 2000)
+    assert (lo < 1 < hi) == (c.ci_low < 0 < c.ci_high)
+    # paired: the per-seed differences; a shared prior term narrows it
+    prior = rng.normal(100, 30, 16)
+    pa, pb = prior + rng.normal(5, 2, 16), prior + rng.normal(0, 2, 16)
+    _, plo, phi = stats.ratio_ci(pa, pb, 2000, paired=True)
+    _, ulo, uhi = stats.ratio_ci(pa, pb, 2000)
+    assert phi - plo < (uhi - ulo) / 3 and plo > 1
+    assert stats.diff_ci(pa - plo * pb, np.zeros(16), 2000)[0] == pytest.approx(0, abs=1e-3)
+    # no positive mean on B, or too few seeds: no ratio
+    assert all(math.isnan(v) for v in stats.ratio_ci([1, 2, 3], [0, 0, 0]))
+    assert all(math.isnan(v) for v in stats.ratio_ci([1, 2], [1, 2]))
+    # B's mean not clearly above 0: no ratio above some r is excluded
+    assert stats.ratio_ci([5, 6, 7, 5], [0.1, -1, 2, 0.5], 2000)[2] == math.inf
+
+
+def test_p_value_is_the_interval_inverted():
+    """p < 1 - level exactly when the interval at that level excludes 0 (same resamples), paired or not."""
+    rng = np.random.default_rng(5)
+    checked = 0
+    for i in range(150):
+        a = rng.lognormal(0, 1, rng.integers(3, 12)) + rng.normal(0.8, 0.6)
+        b = rng.lognormal(0, 1, rng.integers(3, 12))
+        for x, y in ((a, b), (a[:3] - b[:3], np.zeros(3))):
+            for level in (0.9, 0.95, 0.99):
+                lo, hi = stats.diff_ci(x, y, 1000, seed=i, level=level)
+                p, _ = stats._p_values(np.asarray(x), np.asarray(y), 1000, i, level, 0.1)
+                if abs(p - (1 - level)) > 1e-3:   # at the boundary itself ties may go either way
+                    assert (lo > 0 or hi < 0) == (p < 1 - level), (i, level, p, lo, hi)
+                    checked += 1
+    assert checked > 500
+    c = stats.compare([9, 10, 11, 12], [1, 2, 3, 4], margin=1)
+    assert c.p_value < 0.05 and c.p_equivalence == 1.0
+    eq = stats.compare([0.9, 1.0, 1.0, 0.95], [1.0, 0.95, 0.9, 1.0], margin=0.1)
+    assert eq.p_value > 0.5 and eq.p_equivalence < 0.05
+    # the paired p is at least the paired t test's (the interval's floor)
+    from scipy.stats import ttest_1samp
+    x = rng.normal(1, 2, 12)
+    pc = stats.compare(x + 5, np.full(12, 5.0), 0.1, paired=True)
+    assert pc.p_value >= ttest_1samp(x, 0).pvalue - 1e-12
+    assert stats.compare([1.0, 1, 1], [1.0, 1, 1], 0.1).p_value == 1.0      # no spread, no difference
+    assert stats.compare([2.0, 2, 2], [1.0, 1, 1], 0.1).p_value == 0.0
+
+
+def test_holm_and_benjamini_hochberg():
+    p = [0.01, 0.04, 0.03, 0.005, math.nan]
+    holm = stats.holm(p)
+    # sorted 0.005, 0.01, 0.03, 0.04 times 4, 3, 2, 1, running maximum
+    assert list(holm[:4]) == pytest.approx([0.03, 0.06, 0.06, 0.02]) and math.isnan(holm[4])
+    bh = stats.benjamini_hochberg(p)
+    assert list(bh[:4]) == pytest.approx([0.02, 0.04, 0.04, 0.02]) and math.isnan(bh[4])
+    assert list(stats.holm([0.9, 0.8])) == [1.0, 1.0]
+    assert stats.holm([]).size == 0

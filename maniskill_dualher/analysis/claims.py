@@ -1,24 +1,28 @@
 """Claims as data: the paper's (a)-(h) and our ablations' questions, each "side A > side B" on one metric.
 
 A side names its cell explicitly: experiment, arm, method, task and role (``runs.CELL_KEYS``); its values
-are one score per seed from ``scores.csv``. ``claim_rows`` decides each claim with ``stats.compare``.
+are one score per seed from ``scores.csv``. ``claim_rows`` decides each claim with ``stats.compare``, then
+adjusts the p-values within each family (``group``: the paper's claims, the ablations) by Holm and by
+Benjamini-Hochberg; ``survives_holm`` says whether a decided verdict still holds after Holm. The budget
+trend (``budget.trend``) is one more ablation claim.
 
 Add a claim: one ``Claim(...)`` in ``CLAIMS``; it is "not measured" until a sweep runs both sides.
 """
 from __future__ import annotations
 
-import math
+from collections import Counter
 from dataclasses import dataclass
 from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
 from ..config import TASKS
-from . import stats
+from . import budget, stats
 from .paper import PAPER_TARGET
 
 RATE_MARGIN = 0.1      # success rates and sparse returns per episode (in [0, 1]): 10 percentage points
 COUNT_MARGIN = 0.1     # counts and env steps: 10% of the larger side's mean
+FAMILIES = {"paper": "the paper's claims (a)-(h')", "ablation": "the ablations"}   # Holm/BH families
 
 
 @dataclass(frozen=True)
@@ -42,9 +46,10 @@ class Claim:
     a: Side
     b: Side
     relative_margin: bool = False  # margin = 10% of the larger mean (counts) instead of an absolute 0.1
-    group: str = "paper"           # "paper" or "ablation"
+    group: str = "paper"           # "paper" or "ablation": the family its p-value is adjusted in
     explains: str = ""             # ablations: what this claim tells about the dual buffer's gap (summary.md)
-    paper_ratio: Optional[float] = None  # the A/B the paper reports (a lower bound for "< x"): stats' size test
+    paper_ratio: Optional[float] = None  # the A/B the paper reports: our ratio of means is put beside it
+    paper_ratio_at_least: bool = False   # the paper gives a bound ("< 45"): its ratio is at least paper_ratio
 
 
 def _t(method: str, arm: str = "paper", experiment: str = "transfer") -> Side:
@@ -59,7 +64,7 @@ S = "mean_eval_success_rate"
 CLAIMS: List[Claim] = [
     # ------------------------------------------------------------------ the paper's claims
     Claim("a", f"dual_buffer > sac_her_per: successful {PAPER_TARGET} adaptation episodes", "Table 5: 250 vs <45",
-          N, _t(DUAL), _t(HER), relative_margin=True, paper_ratio=250 / 45),
+          N, _t(DUAL), _t(HER), relative_margin=True, paper_ratio=250 / 45, paper_ratio_at_least=True),
     Claim("b", f"dual_buffer > sac_her_per: {PAPER_TARGET} adaptation evaluation return (mean over the curve)",
           "Fig. 5: dual buffer's curve above", R, _t(DUAL), _t(HER)),
     Claim("c", f"ratio 0.6/0.4 > 0.5/0.5: successful {PAPER_TARGET} adaptation episodes", "Table 4: 250 vs 154",
@@ -67,7 +72,7 @@ CLAIMS: List[Claim] = [
           paper_ratio=250 / 154),
     Claim("d", f"ratio 0.5/0.5 > 0.7/0.3: successful {PAPER_TARGET} adaptation episodes", "Table 4: 154 vs <75",
           N, Side("ratios", "0.5/0.5", DUAL), Side("ratios", "0.7/0.3", DUAL), relative_margin=True,
-          paper_ratio=154 / 75),
+          paper_ratio=154 / 75, paper_ratio_at_least=True),
     *[Claim(key, f"dual_buffer > sac: {task} single-task evaluation return (mean over the curve)",
             "Fig. 4: dual buffer's curve above SAC's", R, Side("single", "paper", DUAL, task, "single"),
             Side("single", "paper", "sac", task, "single"))
@@ -146,12 +151,66 @@ CLAIMS: List[Claim] = [
           Side("warm_start", "warm_low_lr", DUAL), Side("warm_start", "warm_low_lr", HER), relative_margin=True,
           group="ablation", explains="claim (a) with a warm start at a lower learning rate: dual buffer minus "
                                      "SAC+HER+PER is"),
+    # ------------------------------------------------------------------ the mechanism: R's lost updates or E's batches
+    # From scratch (no prior): at ratio 1/0 the dual buffer samples only R (real + hindsight rows), i.e.
+    # SAC+HER+PER's algorithm; the paper's 0.6/0.4 gives R 0.6 updates per env step and E the other 0.4.
+    Claim("scratch_e_off", "from scratch, the dual buffer with E off (ratio 1/0) > sac_her_per: successful "
+                           "episodes (the same algorithm: expected no difference)", "", N,
+          Side("mechanism", "e_off", DUAL), Side("scratch", "paper", HER), relative_margin=True, group="ablation",
+          explains="from scratch, E off (ratio 1/0) minus SAC+HER+PER (the same algorithm) is"),
+    Claim("scratch_e_batches", "from scratch, E's batches on top of R's 1 update per env step (1/0.6 updates "
+                               "per step) > E off: successful episodes (E's batches' own effect)", "", N,
+          Side("mechanism", "r_matched", DUAL), Side("mechanism", "e_off", DUAL), relative_margin=True,
+          group="ablation", explains="from scratch, E's own batches (R keeps 1 update per env step, E's on top) "
+                                     "change the count by"),
+    Claim("scratch_r_updates", "from scratch, E off at 0.6 updates per env step > E off at 1: successful "
+                               "episodes (R's lost updates)", "", N, Side("mechanism", "r_starved", DUAL),
+          Side("mechanism", "e_off", DUAL), relative_margin=True, group="ablation",
+          explains="from scratch, R's lost updates (0.6 instead of 1 update per env step, no E) change the "
+                   "count by"),
+    Claim("scratch_e_on_starved", "from scratch, the paper's dual buffer (0.6/0.4: E's batches beside R's 0.6 "
+                                  "updates per env step) > E off at 0.6 updates per env step: successful "
+                                  "episodes", "", N, Side("scratch", "paper", DUAL),
+          Side("mechanism", "r_starved", DUAL), relative_margin=True, group="ablation",
+          explains="from scratch, adding E's batches to R's 0.6 updates per env step changes the count by"),
+    Claim("adapt_e_batches", "in adaptation on the dual buffer's prior, E's batches on top of R's 1 update per "
+                             "env step (1/0.6 updates per step) > E off: successful episodes", "", N,
+          Side("e_share", "r_matched", DUAL), Side("e_share", "e_off", DUAL), relative_margin=True,
+          group="ablation", explains="in adaptation, E's own batches (R keeps 1 update per env step) change the "
+                                     "count by"),
+    Claim("adapt_r_updates", "in adaptation on the dual buffer's prior, E off at 0.6 updates per env step > E "
+                             "off at 1: successful episodes (R's lost updates)", "", N,
+          Side("e_share", "r_starved", DUAL), Side("e_share", "e_off", DUAL), relative_margin=True,
+          group="ablation", explains="in adaptation, R's lost updates (0.6 instead of 1 update per env step, no "
+                                     "E) change the count by"),
+    Claim("adapt_e_on_starved", "in adaptation on the dual buffer's prior, the paper's dual buffer > E off at "
+                                "0.6 updates per env step: successful episodes (E's batches on top of R's 0.6)",
+          "", N, Side("e_share", "paper", DUAL), Side("e_share", "r_starved", DUAL), relative_margin=True,
+          group="ablation", explains="in adaptation, adding E's batches to R's 0.6 updates per env step changes "
+                                     "the count by"),
+    Claim("matched_prior", "with R's updates matched in every stage (1/0.6 per env step), the dual buffer's "
+                           "prior > sac_her_per's, zero-shot on the target: does the prior catch up?", "",
+          "step0_eval_success_rate", Side("matched_chain", "r_matched_all", DUAL), _t(HER), group="ablation",
+          explains="the prior with R's updates matched in every stage: its zero-shot success minus SAC+HER+PER's "
+                   "prior's is"),
+    Claim("matched_a", "with R's updates matched in every stage, dual_buffer > sac_her_per: successful "
+                       "episodes", "", N, Side("matched_chain", "r_matched_all", DUAL), _t(HER),
+          relative_margin=True, group="ablation",
+          explains="claim (a) with R's updates matched in every stage: dual buffer minus SAC+HER+PER is"),
 ]
+
+TREND = Claim("budget_trend", "the dual buffer's count relative to sac_her_per's rises with the adaptation budget "
+                              "(A: dual/HER ratio of mean successful episodes at the largest budget, B: at 1x; "
+                              "A - B column: slope of log2 ratio per doubling of the budget over every budget "
+                              "measured, 1x-8x)", "", N, Side("budget", "x8", DUAL), Side("budget", "x8", HER),
+               group="ablation", explains="per doubling of the adaptation budget, log2 of the dual/HER count "
+                                          "ratio changes by")
 
 CLAIM_COLUMNS = ["claim", "group", "statement", "paper", "metric", "side_a", "side_b", "n_a", "n_b", "mean_a",
                  "mean_b", "diff", "diff_ci95_low", "diff_ci95_high", "welch_ci95_low", "welch_ci95_high",
-                 "prob_improvement", "margin", "verdict", "seeds_to_decide", "paired", "paper_ratio",
-                 "a_minus_paper_ratio_b_ci95_high", "machines"]
+                 "prob_improvement", "margin", "verdict", "seeds_to_decide", "paired", "p_value", "p_holm", "p_bh",
+                 "survives_holm", "p_equivalence", "ratio", "ratio_ci95_low", "ratio_ci95_high", "paper_ratio",
+                 "paper_size", "machines", "machines_by_side", "machine_balanced"]
 
 
 def _in_arm(r: Dict[str, str], side: Side) -> bool:
@@ -172,57 +231,155 @@ def side_values(scores: Sequence[Dict[str, str]], side: Side, metric: str) -> Li
     return [float(by_seed[s]["value"]) for s in sorted(by_seed)]
 
 
+def _machines(rows: Sequence[Dict[str, str]]) -> Counter:
+    return Counter(r.get("machine") or "unknown" for r in rows)
+
+
 def side_machines(scores: Sequence[Dict[str, str]], c: Claim) -> str:
     """The CPUs both sides' runs ran on ("; "-joined, sorted)."""
     rows = list(_side_rows(scores, c.a, c.metric).values()) + list(_side_rows(scores, c.b, c.metric).values())
-    return "; ".join(sorted({r.get("machine") or "unknown" for r in rows})) if rows else ""
+    return "; ".join(sorted(_machines(rows))) if rows else ""
+
+
+def machine_balance(rows_a: Sequence[Dict[str, str]], rows_b: Sequence[Dict[str, str]]) -> Tuple[str, str]:
+    """("A: machine n, ... | B: ...", "yes"/"no"): balanced when each machine holds the same share of both
+    sides' seeds, so a machine effect cannot pose as a method effect."""
+    ma, mb = _machines(rows_a), _machines(rows_b)
+    text = " | ".join(f"{s}: " + ", ".join(f"{m} {n}" for m, n in sorted(c.items())) for s, c in (("A", ma), ("B", mb)))
+    na, nb = sum(ma.values()), sum(mb.values())
+    balanced = set(ma) == set(mb) and all(ma[m] * nb == mb[m] * na for m in ma)
+    return text, "yes" if balanced else "no"
+
+
+def _prior_method(side: Side) -> str:
+    """The method whose source stages the side adapts from: its own, or its arm's shared prior's."""
+    from ..experiment.registry import EXPERIMENTS  # plain data: no torch, no simulator
+
+    exp = EXPERIMENTS.get(side.experiment)
+    arm = next((a for a in exp.arms if a.name == side.arm), None) if exp else None
+    return (arm.prior_method if arm is not None and arm.prior_method else side.method)
 
 
 def _source_runs(scores: Sequence[Dict[str, str]], side: Side) -> Dict[int, Tuple[str, ...]]:
     """Per seed, the run folders of the side's source stages (its prior); empty for single-task or scratch."""
+    prior = Side(side.experiment, side.arm, _prior_method(side), side.task, side.role)
     runs: Dict[int, set] = {}
     for r in scores:
-        if r["role"] == "source" and _in_arm(r, side):
+        if r["role"] == "source" and _in_arm(r, prior):
             runs.setdefault(int(r["seed"]), set()).add(r["run"])
     return {s: tuple(sorted(v)) for s, v in runs.items()}
 
 
-def paired(scores: Sequence[Dict[str, str]], c: Claim) -> bool:
-    """Both sides adapted the very same prior for every seed: the same seeds, each with the same source-stage
-    run folders (one sweep trained it once for both). Decided from the data, never from the outcome."""
+def paired_seeds(scores: Sequence[Dict[str, str]], c: Claim) -> Optional[List[int]]:
+    """The seeds to pair on, or None: every seed of the side with fewer seeds (either, if equal) is a seed of
+    the other side too, and adapted the very same source-stage run folders there (one sweep trained the prior
+    once for both). Then the claim is decided on those seeds, paired; a side whose priors are shared only in
+    part is not paired. Decided from the data, never from the outcome."""
     seeds_a, seeds_b = set(_side_rows(scores, c.a, c.metric)), set(_side_rows(scores, c.b, c.metric))
+    small, other = (seeds_a, seeds_b) if len(seeds_a) <= len(seeds_b) else (seeds_b, seeds_a)
+    if not small or not small <= other:
+        return None
     src_a, src_b = _source_runs(scores, c.a), _source_runs(scores, c.b)
-    return (bool(seeds_a) and seeds_a == seeds_b
-            and all(src_a.get(s) and src_a.get(s) == src_b.get(s) for s in seeds_a))
+    return sorted(small) if all(src_a.get(s) and src_a.get(s) == src_b.get(s) for s in small) else None
+
+
+def paired(scores: Sequence[Dict[str, str]], c: Claim) -> bool:
+    """Both sides adapted the very same prior for every seed they are compared on (``paired_seeds``)."""
+    return paired_seeds(scores, c) is not None
+
+
+def paper_size(c: Claim, ratio_high: float) -> str:
+    """What our ratio interval says about an effect of the size the paper reports (one run per side, no spread)."""
+    size = f"x{c.paper_ratio:.3g}" + (" or more" if c.paper_ratio_at_least else "")
+    said = "excluded" if ratio_high < c.paper_ratio else "not excluded"
+    return f"an effect of the paper's size ({size}) is {said} in this setting; the paper reports no spread"
+
+
+def _claim_row(scores, c: Claim, resamples: int) -> dict:
+    row = {"claim": c.key, "group": c.group, "statement": c.text, "paper": c.paper, "metric": c.metric,
+           "side_a": c.a.label(), "side_b": c.b.label()}
+    rows_a, rows_b = _side_rows(scores, c.a, c.metric), _side_rows(scores, c.b, c.metric)
+    if not rows_a or not rows_b:
+        return {**row, "verdict": "not measured (runs missing)"}
+    seeds = paired_seeds(scores, c)
+    if seeds is not None:
+        rows_a, rows_b = {s: rows_a[s] for s in seeds}, {s: rows_b[s] for s in seeds}
+    a = [float(rows_a[s]["value"]) for s in sorted(rows_a)]
+    b = [float(rows_b[s]["value"]) for s in sorted(rows_b)]
+    margin = COUNT_MARGIN * max(abs(np.mean(a)), abs(np.mean(b)), 1.0) if c.relative_margin else RATE_MARGIN
+    cmp = stats.compare(a, b, margin, resamples, paired=seeds is not None)
+    by_side, balanced = machine_balance(list(rows_a.values()), list(rows_b.values()))
+    row.update({"n_a": cmp.n_a, "n_b": cmp.n_b, "mean_a": cmp.mean_a, "mean_b": cmp.mean_b,
+                "diff": cmp.diff, "diff_ci95_low": cmp.ci_low, "diff_ci95_high": cmp.ci_high,
+                "welch_ci95_low": cmp.welch_low, "welch_ci95_high": cmp.welch_high,
+                "prob_improvement": cmp.prob_improvement, "margin": margin,
+                # our own questions are not reproductions: their "A > B" is "supported"
+                "verdict": cmp.verdict_text().replace(stats.REPRODUCED, "supported")
+                if c.group != "paper" else cmp.verdict_text(),
+                "seeds_to_decide": cmp.seeds_to_decide, "paired": "yes" if seeds is not None else "no",
+                "p_value": cmp.p_value, "p_equivalence": cmp.p_equivalence,
+                "machines": "; ".join(sorted(_machines(list(rows_a.values()) + list(rows_b.values())))),
+                "machines_by_side": by_side, "machine_balanced": balanced})
+    if c.paper_ratio is not None:
+        ratio, lo, hi = stats.ratio_ci(a, b, resamples, paired=seeds is not None)
+        row.update({"ratio": ratio, "ratio_ci95_low": lo, "ratio_ci95_high": hi, "paper_ratio": c.paper_ratio,
+                    "paper_size": paper_size(c, hi) if hi == hi else ""})
+    return row
+
+
+def trend_row(scores, resamples: int) -> dict:
+    """The budget-trend claim as a claims.csv row (``budget.trend``; columns as the module doc of budget.py)."""
+    c = TREND
+    row = {"claim": c.key, "group": c.group, "statement": c.text, "paper": c.paper, "metric": c.metric,
+           "side_a": "dual_buffer/sac_her_per at the largest budget", "side_b": "dual_buffer/sac_her_per at 1x"}
+    t = budget.trend(scores, resamples)
+    if t is None:
+        have = [f"{f:g}x" for f, cells in budget.BUDGETS
+                if min(len(budget.budget_values(scores, cells, m, budget.COUNT)) for m in (DUAL, HER))
+                >= stats.MIN_SEEDS]
+        return {**row, "verdict": f"not measured (needs >= {budget.MIN_BUDGETS} budgets with >= {stats.MIN_SEEDS} "
+                                  f"seeds per method; have {', '.join(have) or 'none'})"}
+    if not t["slope"] == t["slope"]:
+        verdict = "inconclusive (a budget without successful episodes: no ratio)"
+    else:
+        verdict = ("supported" if t["low"] > 0 else "contradicted" if t["high"] < 0 else
+                   "inconclusive (the slope's interval includes 0)")
+    budgets = ", ".join(f"{f:g}x" for f in t["budgets"])
+    return {**row, "side_a": f"dual_buffer/sac_her_per at {t['budgets'][-1]:g}x (budgets {budgets})",
+            "n_a": t["n_dual"], "n_b": t["n_her"], "mean_a": t["ratio_last"], "mean_b": t["ratio_first"],
+            "diff": t["slope"], "diff_ci95_low": t["low"], "diff_ci95_high": t["high"], "verdict": verdict,
+            "paired": "no", "p_value": t["p_value"]}
+
+
+def _adjust(rows: List[dict]) -> None:
+    """Holm and Benjamini-Hochberg within each family, and whether each decided verdict survives Holm:
+    a direction verdict if its Holm-adjusted p < ALPHA; an equivalence verdict if its own test's p times
+    the family's size (Bonferroni, never less strict than Holm) < ALPHA."""
+    for family in FAMILIES:
+        fam = [r for r in rows if r["group"] == family and isinstance(r.get("p_value"), float)
+               and r["p_value"] == r["p_value"]]
+        p = [r["p_value"] for r in fam]
+        for r, ph, pb in zip(fam, stats.holm(p), stats.benjamini_hochberg(p)):
+            r["p_holm"], r["p_bh"] = float(ph), float(pb)
+            v = r["verdict"]
+            if v.startswith(stats.EQUIVALENT):
+                r["survives_holm"] = "yes" if min(1.0, len(fam) * r["p_equivalence"]) < stats.ALPHA else "no"
+            elif v in (stats.REPRODUCED, "supported", stats.CONTRADICTED):
+                r["survives_holm"] = "yes" if ph < stats.ALPHA else "no"
 
 
 def claim_rows(scores: Sequence[Dict[str, str]], resamples: int = 10_000,
                claims: Optional[Sequence[Claim]] = None) -> List[dict]:
-    rows = []
-    for c in CLAIMS if claims is None else claims:
-        a, b = side_values(scores, c.a, c.metric), side_values(scores, c.b, c.metric)
-        row = {"claim": c.key, "group": c.group, "statement": c.text, "paper": c.paper, "metric": c.metric,
-               "side_a": c.a.label(), "side_b": c.b.label()}
-        if not a or not b:
-            rows.append({**row, "verdict": "not measured (runs missing)"})
-            continue
-        margin = COUNT_MARGIN * max(abs(np.mean(a)), abs(np.mean(b)), 1.0) if c.relative_margin else RATE_MARGIN
-        pair = paired(scores, c)
-        cmp = stats.compare(a, b, margin, resamples, paired=pair, paper_ratio=c.paper_ratio)
-        rows.append({**row, "n_a": cmp.n_a, "n_b": cmp.n_b, "mean_a": cmp.mean_a, "mean_b": cmp.mean_b,
-                     "diff": cmp.diff, "diff_ci95_low": cmp.ci_low, "diff_ci95_high": cmp.ci_high,
-                     "welch_ci95_low": getattr(cmp, "welch_low", math.nan),
-                     "welch_ci95_high": getattr(cmp, "welch_high", math.nan),
-                     "prob_improvement": cmp.prob_improvement, "margin": margin,
-                     # our own questions are not reproductions: their "A > B" is "supported"
-                     "verdict": cmp.verdict_text().replace(stats.REPRODUCED, "supported")
-                     if c.group != "paper" else cmp.verdict_text(),
-                     "seeds_to_decide": cmp.seeds_to_decide, "paired": "yes" if pair else "no",
-                     "paper_ratio": c.paper_ratio if c.paper_ratio is not None else "",
-                     "a_minus_paper_ratio_b_ci95_high": cmp.vs_paper_high if c.paper_ratio is not None else "",
-                     "machines": side_machines(scores, c)})
+    rows = [_claim_row(scores, c, resamples) for c in (CLAIMS if claims is None else claims)]
+    if claims is None:
+        rows.append(trend_row(scores, resamples))
+    _adjust(rows)
     return rows
 
 
+def decided(row: dict) -> bool:
+    return "diff" in row and not row["verdict"].startswith(("inconclusive", "not measured"))
+
+
 def explains(key: str) -> str:
-    return next((c.explains for c in CLAIMS if c.key == key), "")
+    return next((c.explains for c in CLAIMS + [TREND] if c.key == key), "")

@@ -26,11 +26,12 @@ from ..cmdline import OneLineParser
 from ..config import ConfigError
 from ..experiment.registry import default_experiments  # plain data: no torch, no simulator
 from ..fileio import atomic_write_text, csv_text, fmt
+from . import budget as budget_mod
 from . import claims as claims_mod
-from . import plots, stats
+from . import plots, plots_budget, stats
 from .paper import PAPER_ADAPT_BUDGET, PAPER_ADAPT_STEPS, PAPER_TABLE3
-from .runs import (CURVE_COLUMNS, METRICS, SCORE_COLUMNS, Run, curve_rows, load_runs, read_rows,
-                   score_rows)
+from .runs import (CURVE_COLUMNS, METRICS, SCORE_COLUMNS, Run, curve_key, curve_rows, load_runs, read_rows,
+                   score_key, score_rows, unique_rows)
 from .tables import TABLE_COLUMNS, build_tables
 
 SCORES, CURVES = "scores.csv", "curves.csv"
@@ -78,16 +79,22 @@ def _g(v) -> str:
 
 
 def claims_md(rows: List[dict]) -> List[str]:
-    lines = ["| | claim (A > B) | paper | A vs B (mean over seeds, n) | A - B [95% CI] | P(A > B) | verdict |",
-             "|---|---|---|---|---|---|---|"]
+    lines = ["| | claim (A > B) | paper | A vs B (mean over seeds, n) | A - B [95% CI] | P(A > B) | verdict | "
+             "p, Holm (survives) |", "|---|---|---|---|---|---|---|---|"]
     for r in rows:
         if "diff" not in r:
-            lines.append(f"| {r['claim']} | {r['statement']} | {r['paper']} | | | | {r['verdict']} |")
+            lines.append(f"| {r['claim']} | {r['statement']} | {r['paper']} | | | | {r['verdict']} | |")
             continue
-        lines.append(f"| {r['claim']} | {r['statement']} | {r['paper']} | {_g(r['mean_a'])} vs {_g(r['mean_b'])} "
-                     f"(n = {r['n_a']}, {r['n_b']}) | {_g(r['diff'])} [{_g(r['diff_ci95_low'])}, "
+        holm = f"{_g(r['p_value'])}, {_g(r['p_holm'])}" if "p_holm" in r else ""
+        if r.get("survives_holm"):
+            holm += f" ({r['survives_holm']})"
+        size = f"; ratio {_g(r['ratio'])} [{_g(r['ratio_ci95_low'])}, {_g(r['ratio_ci95_high'])}]: " \
+               f"{r['paper_size']}" if r.get("paper_size") else ""
+        p_imp = f"{r['prob_improvement']:.2f}" if "prob_improvement" in r else ""
+        lines.append(f"| {r['claim']} | {r['statement']} | {r['paper']}{size} | {_g(r['mean_a'])} vs "
+                     f"{_g(r['mean_b'])} (n = {r['n_a']}, {r['n_b']}) | {_g(r['diff'])} [{_g(r['diff_ci95_low'])}, "
                      f"{_g(r['diff_ci95_high'])}]{' paired' if r.get('paired') == 'yes' else ''} | "
-                     f"{r['prob_improvement']:.2f} | **{r['verdict']}** |")
+                     f"{p_imp} | **{r['verdict']}** | {holm} |")
     return lines
 
 
@@ -99,7 +106,11 @@ def md_table(rows: List[dict], columns: List[str]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def summary_md(folder: Path, scores, tables, claims, figures: List[str], unfinished: List[str]) -> str:
+FAMILY_TITLES = [f"{t} (`{g}`)" for g, t in claims_mod.FAMILIES.items()]
+
+
+def summary_md(folder: Path, scores, tables, claims, figures: List[str], unfinished: List[str],
+               budget_rows: Sequence[dict] = ()) -> str:
     sweep = rundir.read_sweep(folder) or {}
     runs = sorted({r["run"] for r in scores})
     s = [f"# Results: {folder.name}" + (f" (preset {sweep['preset']})" if sweep.get("preset") else ""), ""]
@@ -127,22 +138,34 @@ def summary_md(folder: Path, scores, tables, claims, figures: List[str], unfinis
     s += ["", "Every table, claim and figure here is computed from `scores.csv` (one value per run and metric) and "
           "`curves.csv` (one row per evaluation): `python -m maniskill_dualher.report <this folder>` rebuilds them "
           "without the run folders.", ""]
-    decided = [r for r in claims if "diff" in r and not r["verdict"].startswith(("inconclusive", "not measured"))]
+    decided = [r for r in claims if claims_mod.decided(r)]
     tested = [r for r in claims if "diff" in r]
     s += ["## Verdicts (`claims.csv`)", "",
           "Each claim is 'A > B' (the paper's direction, or the ablation's question). Each side is one score "
-          "per seed; the difference of means A - B gets a 95% interval (" + getattr(stats, "CI_METHOD", "bootstrap")
+          "per seed; the difference of means A - B gets a 95% interval (" + stats.CI_METHOD
           + ", `analysis/stats.py`; a Welch t interval beside it in `claims.csv`), and P(A > B) is the "
-          "probability of improvement (Mann-Whitney, as in rliable). **reproduced / supported**: the interval excludes 0 in A's favour; **contradicted**: "
-          "it excludes 0 the other way; **no difference larger than X**: it lies within +-X (X = "
-          f"{claims_mod.RATE_MARGIN} for rates and returns, {claims_mod.COUNT_MARGIN:.0%} of the larger mean for counts "
-          "and env steps); **smaller than the paper's** (paper claims with the paper's A/B, rho): the direction is "
-          "undecided but the same interval on mean(A) - rho mean(B) lies below 0, so the paper's effect is ruled "
-          "out (`a_minus_paper_ratio_b_ci95_high`); **inconclusive** otherwise, with the seeds per side that would "
-          "decide it at 80% power at the observed spread and difference. **paired**: both sides adapted the same "
-          "prior for every seed (the same source-stage runs), so the interval is on the per-seed differences.", "",
-          f"{len(decided)} of {len(claims)} claims decided. "
-          + (stats.multiplicity_note(len(tested)) if hasattr(stats, "multiplicity_note") and tested else ""), ""]
+          "probability of improvement (Mann-Whitney, as in rliable). **reproduced / supported**: the interval "
+          "excludes 0 in A's favour; **contradicted**: it excludes 0 the other way; **no difference larger than "
+          f"X**: it lies within +-X (X = {claims_mod.RATE_MARGIN} for rates and returns, "
+          f"{claims_mod.COUNT_MARGIN:.0%} of the larger mean for counts and env steps); **inconclusive** "
+          "otherwise, with the seeds per side that would decide it at 80% power at the observed spread and "
+          "difference. **paired**: both sides adapted the same prior for every seed compared (the same "
+          "source-stage runs), so the interval is on the per-seed differences.", "",
+          "Verdicts are at 95% per claim. `p_value` is the two-sided p of A = B inverted from the same interval "
+          "(the level at which it just reaches 0); within each family (" + "; ".join(FAMILY_TITLES)
+          + ") it is adjusted by Holm (`p_holm`) and by Benjamini-Hochberg (`p_bh`). `survives_holm`: a decided "
+          "verdict that still holds after Holm at 5% (an equivalence verdict: its own test, Bonferroni over the "
+          "family); the last column below gives p, Holm's p and that answer. Where the paper gives a number "
+          "(Tables 4, 5) the ratio of means A/B has a 95% interval (the ratios the same interval does not "
+          "exclude) and `paper_size` says whether an effect of the paper's size is excluded in this setting; "
+          "the paper reports one run per side, no spread.", "",
+          f"{len(decided)} of {len(claims)} claims decided at 95%, "
+          f"{sum(r.get('survives_holm') == 'yes' for r in claims)} of them after Holm within their family. "
+          + (stats.multiplicity_note(len(tested)) if tested else ""), ""]
+    unbalanced = [r["claim"] for r in claims if r.get("machine_balanced") == "no"]
+    if unbalanced:
+        s += ["Claims whose two sides are unbalanced by machine (a machine holds a different share of A's seeds "
+              "than of B's; `machines_by_side` in `claims.csv`): " + ", ".join(unbalanced) + ".", ""]
     for group, title in (("paper", "The paper's claims"), ("ablation", "Why: ablations of the adaptation stage")):
         rows = [r for r in claims if r["group"] == group]
         if rows:
@@ -151,8 +174,16 @@ def summary_md(folder: Path, scores, tables, claims, figures: List[str], unfinis
     if why:
         s += ["### Why the dual buffer's count differs: one sentence per ablation claim", ""]
         s += [f"- {claims_mod.explains(r['claim'])} {_g(r['diff'])} [{_g(r['diff_ci95_low'])}, "
-              f"{_g(r['diff_ci95_high'])}] (`{r['metric']}`, n = {r['n_a']}, {r['n_b']}): **{r['verdict']}** "
-              f"(claim {r['claim']})." for r in why] + [""]
+              f"{_g(r['diff_ci95_high'])}] (`{r['metric']}`, n = {r['n_a']}, {r['n_b']}): **{r['verdict']}**"
+              + (f", {'survives' if r['survives_holm'] == 'yes' else 'does not survive'} Holm"
+                 if r.get("survives_holm") else "") + f" (claim {r['claim']})." for r in why] + [""]
+    if budget_rows:
+        s += ["## The budget curve (`budget.csv`)", "",
+              "The adaptation at several budgets (factor x the adaptation budget): the ratio of mean successful "
+              "adaptation episodes, dual buffer / SAC+HER+PER, with its 95% interval, and the difference in final "
+              "evaluation success (dual buffer - SAC+HER+PER) with its 95% interval (`analysis/budget.py`). "
+              + budget_mod.order_sentence(budget_rows), "",
+              md_table(budget_rows, budget_mod.BUDGET_COLUMNS)]
     cols = ["experiment", "arm", "task", "method", "variant", "metric", "n_seeds", "mean", "std", "ci95_low",
             "ci95_high", "paper"]
     for name, title in (("table5_multitask.csv", "Table 5: transfer and scratch, adaptation stage"),
@@ -203,6 +234,23 @@ def merge_into(folder: Path, other: Path) -> None:
     rundir.write_json(folder / rundir.SWEEP, {**mine, "merged": merged})
 
 
+def _read_unique(folder: Path, written: List[Path]):
+    """scores.csv and curves.csv, each row once (``runs.unique_rows``); a file that held repeats (written
+    before a run's cells were made unique) is rewritten without them, so the next rebuild reads it as is."""
+    files = ((SCORES, score_key, SCORE_COLUMNS), (CURVES, curve_key, CURVE_COLUMNS))
+    read = [read_rows(folder / name) for name, _, _ in files]
+    try:  # both checked before either is rewritten
+        unique = [unique_rows(rows, key, str(folder / name)) for rows, (name, key, _) in zip(read, files)]
+    except ValueError as e:
+        raise ConfigError(str(e)) from None
+    for rows, kept, (name, _, columns) in zip(read, unique, files):
+        if len(kept) < len(rows):
+            atomic_write_text(folder / name, csv_text(kept, columns))
+            if folder / name not in written:
+                written.append(folder / name)
+    return unique
+
+
 def build_report(folder, resamples: int = 10_000, reference: Optional[Path] = None) -> List[Path]:
     """Write scores/curves (from runs), then tables, claims, plots and summary.md; return the paths written."""
     folder = Path(folder)
@@ -228,7 +276,7 @@ def build_report(folder, resamples: int = 10_000, reference: Optional[Path] = No
         raise ConfigError(f"{folder} holds no finished runs and no {SCORES}/{CURVES}: nothing to report "
                           f"({len(unfinished)} unfinished runs)")
     # everything below reads the two files back, so a rebuild without run folders is byte-identical
-    scores, curves = read_rows(folder / SCORES), read_rows(folder / CURVES)
+    scores, curves = _read_unique(folder, written)
     ref_curves = None
     if reference is not None:
         if not (Path(reference) / CURVES).is_file():
@@ -241,16 +289,22 @@ def build_report(folder, resamples: int = 10_000, reference: Optional[Path] = No
     claims = claims_mod.claim_rows(scores, resamples)
     atomic_write_text(folder / "claims.csv", csv_text(claims, claims_mod.CLAIM_COLUMNS))
     written.append(folder / "claims.csv")
+    budget_rows = budget_mod.budget_rows(scores, resamples)
+    if budget_rows:
+        atomic_write_text(folder / "budget.csv", csv_text(budget_rows, budget_mod.BUDGET_COLUMNS))
+        written.append(folder / "budget.csv")
     figures = []
     ablations = [e for e in dict.fromkeys(r["experiment"] for r in scores) if e not in default_experiments()]
     for name, fn in (("fig4_single_task.png", lambda p: plots.plot_fig4(curves, p, ref_curves)),
                      ("fig5_multitask.png", lambda p: plots.plot_fig5(curves, p, ref_curves)),
                      ("fig6_ablations.png", lambda p: plots.plot_ablations(curves, p, ablations)),
-                     ("fig7_aggregate.png", lambda p: plots.plot_aggregate(scores, p))):
+                     ("fig7_aggregate.png", lambda p: plots.plot_aggregate(scores, p)),
+                     ("fig8_budget.png", lambda p: plots_budget.plot_budget(budget_rows, p))):
         if fn(folder / name):
             figures.append(name)
             written.append(folder / name)
-    atomic_write_text(folder / "summary.md", summary_md(folder, scores, tables, claims, figures, unfinished))
+    atomic_write_text(folder / "summary.md", summary_md(folder, scores, tables, claims, figures, unfinished,
+                                                               budget_rows))
     written.append(folder / "summary.md")
     return written
 

@@ -128,15 +128,44 @@ def _cell_values(c: dict) -> Dict[str, str]:
     return {k: "" if c.get(k) is None else str(c.get(k)) for k in CELL_KEYS}
 
 
+def _unique_cells(cells: List[dict]) -> List[Dict[str, str]]:
+    """A run's cells as CELL_KEYS values, each once: the grid lists a shared prior's source stage once per
+    method that adapts from it, with the same values (the prior's method), and a score is per cell."""
+    return [dict(t) for t in dict.fromkeys(tuple(_cell_values(c).items()) for c in cells)]
+
+
+def score_key(r: Dict[str, str]) -> tuple:
+    """What a scores.csv row is unique by: its run, its cell and its metric."""
+    return (r["run"], *(r[k] for k in CELL_KEYS), r["metric"])
+
+
+def curve_key(r: Dict[str, str]) -> tuple:
+    return (r["run"], *(r[k] for k in CELL_KEYS), *(r[k] for k in ["env_steps"] + CURVE_KEYS))
+
+
+def unique_rows(rows: List[Dict[str, str]], key: Callable[[Dict[str, str]], tuple],
+                what: str) -> List[Dict[str, str]]:
+    """``rows`` without repeats of a key (the first kept); a key repeated with another value is an error
+    (two runs would claim one cell), raised as ValueError naming it. Scores written before the cells were
+    made unique (a shared prior's source stages, listed once per adapting method) are read through this."""
+    seen: Dict[tuple, Dict[str, str]] = {}
+    for r in rows:
+        k = key(r)
+        if k in seen and seen[k] != r:
+            raise ValueError(f"{what} holds {'/'.join(map(str, k))} twice with different values")
+        seen.setdefault(k, r)
+    return list(seen.values())
+
+
 def score_rows(runs: List[Run]) -> List[Dict[str, str]]:
     out = []
     for r in sorted(runs, key=lambda r: r.rel):
         values = {m: fn(r) for m, (fn, _) in METRICS.items()}
-        for c in r.cells:
+        for c in _unique_cells(r.cells):
             for m, v in values.items():
                 if isinstance(v, float) and math.isnan(v):
                     continue
-                out.append({**_cell_values(c), "metric": m, "value": _num(v), "run": r.rel, "machine": r.machine})
+                out.append({**c, "metric": m, "value": _num(v), "run": r.rel, "machine": r.machine})
     return out
 
 
@@ -148,9 +177,9 @@ def nominal_step(cfg: RunConfig, env_steps: float) -> int:
 def curve_rows(runs: List[Run]) -> List[Dict[str, str]]:
     out = []
     for r in sorted(runs, key=lambda r: r.rel):
-        for c in r.cells:
+        for c in _unique_cells(r.cells):
             for row in r.rows:
-                out.append({**_cell_values(c), "env_steps": str(nominal_step(r.cfg, row["env_steps"])),
+                out.append({**c, "env_steps": str(nominal_step(r.cfg, row["env_steps"])),
                             **{k: _num(row.get(k, math.nan)) for k in CURVE_KEYS}, "run": r.rel})
     return out
 

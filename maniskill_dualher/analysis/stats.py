@@ -27,7 +27,7 @@ each interval, n seeds per side (``null``: both sides from the same distribution
 wider member of the family: lognormal(0.5, 1) vs lognormal(0, 1),
 exponential mean 2 vs 1, zero-inflated Poisson 30% zeros lambda 8 vs 5, and "learned or not" success
 counts out of 20, a mixture of Binomial(20, 0.7) and Binomial(20, 0.1), 70% vs 50% learned); measured
-with ``python -m maniskill_dualher.analysis.stats --reps 2000 --resamples 2000``::
+with ``python bench/ci_coverage.py --reps 2000 --resamples 2000``::
 
     case  data                  n         pct        BCa      welch     boot-t sym boot-t  | median width / Welch's
     null  lognormal             4       0.846      0.817      0.982      0.978      0.989  | 0.60 0.63 1.00 1.25 1.35
@@ -93,29 +93,49 @@ same symmetric bootstrap-t on the one sample x (resampling seeds, studentized by
 at the paired t interval (reported as the Welch columns), and seeds_to_decide uses var(x) in place of
 s_A^2 + s_B^2. It is the same code path as the two-sample interval with B = 0 (one stratum, df = n - 1).
 Pairing is decided from the data (``claims.paired``), never by the outcome. Coverage, measured as above with
-a shared prior term per seed (``python -m maniskill_dualher.analysis.stats --paired --reps 1000 --resamples
+a shared prior term per seed (``python bench/ci_coverage.py --paired --reps 1000 --resamples
 1000 --n 6 16 32 --methods percentile welch-t "symmetric bootstrap-t"``, CPU B): the chosen interval covers
 0.959-0.989 at n = 6, 0.936-0.980 at n = 16 and 0.936-0.976 at n = 32 over the same 8 cases (paired t:
 0.929-0.971; percentile 0.839-0.942); the lowest, 0.936, is the exponential "diff" case, where the
 unpaired interval also sits at 0.944. Median width 1.01-1.15x the paired t interval's at n >= 16.
 
-The paper's effect size
------------------------
-Where the paper reports both sides' numbers, the claim carries the paper's ratio rho = A/B (a lower bound
-where the paper says "< x"). A direction the CI cannot settle can still answer the replication question:
-the same interval on the contrast mean(A) - rho mean(B) (B's scores scaled by rho; paired likewise) lying
-below 0 rules out A >= rho B at 95%, i.e. the paper's effect is larger than anything our data allows
-("small telescopes", Simonsohn 2015; LeBel et al. 2018's "inconsistent with the original effect size").
-That verdict, **smaller than the paper's**, replaces *inconclusive* only: it says the effect the paper
-reports is ruled out and that the sign is undecided. A ratio is our closest scale-free reading of the paper's
-numbers; it is not budget-free (the paper's counts come from a far larger budget).
+Partly shared priors are not paired: ``claims.paired_seeds`` pairs a claim on the seeds of its smaller side
+only when every one of them adapted the same source-stage runs on the other side (e.g. ``split``'s 8 seeds
+beside the paper arm's 32, or ``shared_a``, where both methods adapt SAC+HER+PER's prior); the other side's
+remaining seeds are then left out. A claim whose priors are shared for some seeds only (``r_matched``: 8 of
+32) stays unpaired on all its seeds.
 
-Each claim's CI is at 95%; with many claims some exclude 0 by chance: ``multiplicity_note`` says how many
-to expect, ``bonferroni_level`` gives the per-claim level a Bonferroni correction would use.
+p-values, and the correction for many claims
+--------------------------------------------
+Each claim's verdict is read off its 95% interval. Its p-value (``Comparison.p_value``) is that same
+interval inverted: the smallest alpha at which the 1 - alpha interval (same resamples, same Welch floor)
+no longer reaches 0. As the interval is d +- max(q_boot, q_welch) se, it is the larger of Welch's two-sided
+p (paired: the paired t test's) and the bootstrap-t p, the share of resamples with |t*| >= |d| / se (both
+``_p_sym``); so p < 0.05 exactly when the 95% interval excludes 0 (tested). ``p_equivalence`` inverts the
+equivalence verdict the same way (the level at which the interval just fits inside +-margin).
+
+``claims.claim_rows`` adjusts the p-values within each family of claims, the paper's (a)-(h') and the
+ablations, by Holm (``holm``: step-down, controls the chance of any false "excludes 0" in the family at
+5%) and by Benjamini-Hochberg (``benjamini_hochberg``: scipy's ``false_discovery_control``, controls the
+expected share of false ones). The verdict column stays the 95% interval's; ``survives_holm`` says whether
+a decided verdict still holds after Holm (direction verdicts: Holm-adjusted p < 0.05; an equivalence
+verdict: its own p times the family's size, Bonferroni, which is never less strict than Holm). The README
+leans only on verdicts that survive Holm.
+
+The paper's numbers
+-------------------
+Where the paper reports both sides' numbers (Tables 4 and 5: one run per side, no spread) the claim
+carries the paper's ratio rho = A/B (a lower bound where the paper says "< x"), and ``ratio_ci`` puts our
+ratio of means beside it: mean(A)/mean(B) with the ratios r whose contrast mean(A) - r mean(B) the same
+symmetric bootstrap-t interval does not exclude (paired: on a - r b), a Fieller-type inversion of the
+claim's own interval (same resamples for every r, so the ends are found by root search). Its upper end
+below rho says an effect of the paper's size is excluded in this setting; that is a statement about size,
+not a verdict: the direction verdict stays the difference's ("small telescopes", Simonsohn 2015). A ratio is
+our closest scale-free reading of the paper's numbers; it is not budget-free (the paper's counts come from
+a far larger budget, and the ratio moves with the budget: ``budget.py``).
 """
 from __future__ import annotations
 
-import argparse
 import math
 from dataclasses import dataclass
 from typing import Callable, Dict, Optional, Sequence, Tuple
@@ -126,7 +146,7 @@ REPRODUCED = "reproduced"
 CONTRADICTED = "contradicted"
 EQUIVALENT = "no difference larger than"
 INCONCLUSIVE = "inconclusive"
-SMALLER = "smaller than the paper's"
+ALPHA = 0.05            # 1 - the intervals' level: what an adjusted p-value is held to
 MIN_SEEDS = 3            # fewer per side: no CI is computed (a bootstrap of 2 values is just their range)
 MAX_SEEDS_ADVICE = 1000  # above this, "more seeds" is no advice
 POWER = 0.8              # seeds_to_decide: power of a two-sided 5% test at the observed difference
@@ -158,14 +178,12 @@ class Comparison:
     welch_high: float = math.nan
     ci_method: str = BOOT_T          # what produced ci_low/ci_high (see the module doc)
     paired: bool = False
-    paper_ratio: float = math.nan    # the paper's A/B, when it reports one
-    vs_paper_high: float = math.nan  # upper 95% bound of mean(A) - paper_ratio mean(B)
+    p_value: float = math.nan        # two-sided test of A = B: the interval at level 1 - p just reaches 0
+    p_equivalence: float = math.nan  # the interval at level 1 - p just reaches +-margin (1: |diff| >= margin)
 
     def verdict_text(self) -> str:
         if self.verdict == EQUIVALENT:
             return f"{EQUIVALENT} {self.margin:.3g}"
-        if self.verdict == SMALLER:
-            return f"{SMALLER}: A >= {self.paper_ratio:.3g} B ruled out; direction undecided"
         if self.verdict == INCONCLUSIVE:
             if self.n_a < MIN_SEEDS or self.n_b < MIN_SEEDS:
                 return f"{INCONCLUSIVE} (needs >= {MIN_SEEDS} seeds per side)"
@@ -196,11 +214,9 @@ def _boot_means_vars(a, b, resamples, rng):
     return ra.mean(1), ra.var(1, ddof=1), rb.mean(1), rb.var(1, ddof=1)
 
 
-def _boot_t(a, b, resamples, seed, level, symmetric=True) -> Tuple[float, float, str]:
-    wl, wh, se, q_welch = _welch(a, b, level)
+def _t_star(a, b, resamples, seed) -> np.ndarray:
+    """The resamples' Welch t statistics t* = (d* - d) / se* (+-inf where a resample has no spread)."""
     d = float(a.mean() - b.mean())
-    if se == 0:  # every resample gives the same difference
-        return d, d, NO_SPREAD
     ma, va, mb, vb = _boot_means_vars(a, b, resamples, np.random.default_rng(seed))
     scale = max(float(np.abs(a).max()), float(np.abs(b).max()))
     dev = (ma - mb) - d
@@ -210,6 +226,15 @@ def _boot_t(a, b, resamples, seed, level, symmetric=True) -> Tuple[float, float,
     t = np.zeros_like(dev)
     t[~flat] = dev[~flat] / se_star[~flat]
     t[flat & (dev != 0)] = np.copysign(np.inf, dev[flat & (dev != 0)])
+    return t
+
+
+def _boot_t(a, b, resamples, seed, level, symmetric=True) -> Tuple[float, float, str]:
+    wl, wh, se, q_welch = _welch(a, b, level)
+    d = float(a.mean() - b.mean())
+    if se == 0:  # every resample gives the same difference
+        return d, d, NO_SPREAD
+    t = _t_star(a, b, resamples, seed)
     if symmetric:
         qs = np.abs(t)
         if np.mean(np.isinf(qs)) >= 1 - level:  # the quantile itself would be infinite
@@ -225,6 +250,100 @@ def _boot_t(a, b, resamples, seed, level, symmetric=True) -> Tuple[float, float,
     q_lo = float(np.quantile(fin, _finite_rank_at(p_lo, len(t), n_neg, len(fin))))
     q_hi = float(np.quantile(fin, _finite_rank_at(p_hi, len(t), n_neg, len(fin))))
     return d - q_hi * se, d - q_lo * se, "bootstrap-t"
+
+
+def _p_sym(a, b, resamples, seed, level, z: float) -> float:
+    """The p-value of the symmetric bootstrap-t interval at distance z (in Welch standard errors) from the
+    difference: the smallest alpha at which the 1 - alpha interval (``_boot_t``, same resamples) no longer
+    reaches a point z se away. The interval is d +- max(q_boot, q_welch) se, so this is the larger of the
+    two p-values, Welch's 2 P(T_df > z) and the share of resamples with |t*| >= z (numpy's linear quantile,
+    inverted); where the interval at ``level`` falls back to Welch's (>= 1 - level of the |t*| infinite),
+    Welch's alone. So p < 1 - level exactly when the interval at ``level`` excludes that point."""
+    from scipy.stats import t as t_dist
+
+    if z <= 0:
+        return 1.0
+    va, vb = a.var(ddof=1) / len(a), b.var(ddof=1) / len(b)
+    df = (va + vb) ** 2 / ((va ** 2 / (len(a) - 1) if va else 0.0) + (vb ** 2 / (len(b) - 1) if vb else 0.0))
+    p_welch = float(2 * t_dist.sf(z, df))
+    qs = np.abs(_t_star(a, b, resamples, seed))
+    frac_inf = float(np.mean(np.isinf(qs)))
+    if frac_inf >= 1 - level:  # the interval at this level is Welch's
+        return p_welch
+    fin = np.sort(qs[np.isfinite(qs)])
+    # the largest level L whose quantile of |t*| is still below z: its position in the sorted sample
+    pos = float(np.interp(z, fin, np.arange(len(fin)))) if z <= fin[-1] else len(fin) - 1.0
+    if z <= fin[0]:
+        pos = 0.0
+    p_boot = 1.0 - pos / max(len(qs) - 1, 1)
+    return max(p_boot, p_welch)
+
+
+def _p_values(x, y, resamples, seed, level, margin) -> Tuple[float, float]:
+    """(p of A = B, p of equivalence within +-margin), both inverted from the interval ``compare`` uses."""
+    d = float(x.mean() - y.mean())
+    se = math.sqrt(x.var(ddof=1) / len(x) + y.var(ddof=1) / len(y))
+    if se == 0:  # the interval is the point d
+        return float(d == 0), float(abs(d) > margin)
+    return (_p_sym(x, y, resamples, seed, level, abs(d) / se),
+            _p_sym(x, y, resamples, seed, level, (margin - abs(d)) / se) if margin > abs(d) else 1.0)
+
+
+def ratio_ci(a: Sequence[float], b: Sequence[float], resamples: int = 10_000, seed: int = 0,
+             level: float = 0.95, paired: bool = False) -> Tuple[float, float, float]:
+    """mean(A) / mean(B) and its interval: the ratios rho whose contrast mean(A) - rho mean(B) the
+    symmetric bootstrap-t interval (paired: on a - rho b) does not exclude, a Fieller-type inversion of the
+    difference's own interval (module doc). NaN without a positive mean(B) or with < MIN_SEEDS per side;
+    an end is +-inf where no rho excludes it."""
+    from scipy.optimize import brentq
+
+    a, b = _as_scores(a), _as_scores(b)
+    if min(len(a), len(b)) < MIN_SEEDS or not b.mean() > 0:
+        return math.nan, math.nan, math.nan
+    if paired and len(a) != len(b):
+        raise ValueError(f"paired sides need one value per seed on each side (got {len(a)} and {len(b)})")
+    rho = float(a.mean() / b.mean())
+
+    def bound(r: float, end: int) -> float:  # the contrast interval's low (0) or high (1) end at ratio r
+        x, y = (a - r * b, np.zeros_like(a)) if paired else (a, r * b)
+        return _diff_ci(x, y, resamples, seed, level, BOOT_T)[end]
+
+    def limit(end: int, sign: int) -> float:
+        # the contrast falls as r grows: below the interval its low end is > 0, above it its high end < 0;
+        # step outward from rho (where the contrast is 0) until it is, then find the crossing
+        inner, step = rho, max(abs(rho), 1.0) / 8
+        for _ in range(40):
+            outer = inner + sign * step
+            if (bound(outer, end) > 0) if sign < 0 else (bound(outer, end) < 0):
+                return float(brentq(lambda r: bound(r, end), min(inner, outer), max(inner, outer),
+                                    xtol=1e-6 * max(abs(rho), 1.0)))
+            inner, step = outer, step * 2
+        return sign * math.inf
+    return rho, limit(0, -1), limit(1, 1)
+
+
+def holm(p: Sequence[float]) -> np.ndarray:
+    """Holm's step-down adjusted p-values (NaN entries stay NaN and do not count)."""
+    p = np.asarray(p, float)
+    out = np.full_like(p, np.nan)
+    ok = np.flatnonzero(np.isfinite(p))
+    if ok.size:
+        order = ok[np.argsort(p[ok], kind="stable")]
+        m = ok.size
+        out[order] = np.minimum(np.maximum.accumulate((m - np.arange(m)) * p[order]), 1.0)
+    return out
+
+
+def benjamini_hochberg(p: Sequence[float]) -> np.ndarray:
+    """Benjamini-Hochberg adjusted p-values (scipy's ``false_discovery_control``; NaN entries stay NaN)."""
+    from scipy.stats import false_discovery_control
+
+    p = np.asarray(p, float)
+    out = np.full_like(p, np.nan)
+    ok = np.isfinite(p)
+    if ok.any():
+        out[ok] = false_discovery_control(p[ok], method="bh")
+    return out
 
 
 def _finite_rank(qs: np.ndarray, p: float) -> float:
@@ -331,15 +450,14 @@ def multiplicity_note(n_claims: int, level: float = 0.95) -> str:
     alpha = 1 - level
     tested = f"{n} claim was tested, at {level:.0%}" if n == 1 else f"{n} claims were tested, each at {level:.0%}"
     return (f"{tested}; with {n} independent test{'s' if n != 1 else ''} about {alpha * n:.2g} would exclude 0 "
-            f"by chance if no difference existed (no correction applied; Bonferroni would use "
-            f"{bonferroni_level(n, level):.2%} per claim).")
+            f"by chance if no difference existed, hence the adjusted p-values (Bonferroni over all of them "
+            f"would use {bonferroni_level(n, level):.2%} per claim).")
 
 
 def compare(a: Sequence[float], b: Sequence[float], margin: float, resamples: int = 10_000,
-            seed: int = 0, level: float = 0.95, paired: bool = False,
-            paper_ratio: Optional[float] = None) -> Comparison:
-    """Does A beat B? The difference A - B with its CI, and one verdict (see the module doc). ``paired``:
-    a[i] and b[i] adapted the same prior (same seed); ``paper_ratio``: the A/B the paper reports."""
+            seed: int = 0, level: float = 0.95, paired: bool = False) -> Comparison:
+    """Does A beat B? The difference A - B with its CI, one verdict and the p-values of its tests (see the
+    module doc). ``paired``: a[i] and b[i] adapted the same prior (same seed)."""
     a, b = _as_scores(a), _as_scores(b)
     if len(a) == 0 or len(b) == 0:
         raise ValueError("compare needs at least one value per side")
@@ -348,49 +466,25 @@ def compare(a: Sequence[float], b: Sequence[float], margin: float, resamples: in
     mean_a, mean_b = float(a.mean()), float(b.mean())
     diff = mean_a - mean_b
     p_imp = prob_improvement(a, b)
-    rho = math.nan if paper_ratio is None else float(paper_ratio)
     if min(len(a), len(b)) < MIN_SEEDS:
         return Comparison(len(a), len(b), mean_a, mean_b, diff, math.nan, math.nan, p_imp, margin,
-                          INCONCLUSIVE, None, ci_method="none (too few seeds)", paired=paired, paper_ratio=rho)
-
-    def samples(k: float):
-        """The two samples whose difference of means is mean(A) - k mean(B); paired: the one sample of
-        per-seed differences beside zeros, i.e. the two-sample code with B = 0 (module doc)."""
-        return (a - k * b, np.zeros_like(a)) if paired else (a, k * b)
-
-    x, y = samples(1.0)
+                          INCONCLUSIVE, None, ci_method="none (too few seeds)", paired=paired)
+    # paired: the one sample of per-seed differences beside zeros, i.e. the two-sample code with B = 0
+    x, y = (a - b, np.zeros_like(a)) if paired else (a, b)
     lo, hi, how = _diff_ci(x, y, resamples, seed, level, BOOT_T)
     wl, wh, _, _ = _welch(x, y, level)
-    vs_paper = math.nan if math.isnan(rho) else _diff_ci(*samples(rho), resamples, seed, level, BOOT_T)[1]
+    p, p_eq = _p_values(x, y, resamples, seed, level, margin)
     if lo > 0:
         verdict = REPRODUCED
     elif hi < 0:
         verdict = CONTRADICTED
     elif -margin <= lo and hi <= margin:
         verdict = EQUIVALENT
-    elif vs_paper < 0:
-        verdict = SMALLER
     else:
         verdict = INCONCLUSIVE
-    need = seeds_to_decide(x, y, margin) if verdict in (INCONCLUSIVE, SMALLER) else None
+    need = seeds_to_decide(x, y, margin) if verdict == INCONCLUSIVE else None
     return Comparison(len(a), len(b), mean_a, mean_b, diff, lo, hi, p_imp, margin, verdict, need, wl, wh,
-                      ("paired " if paired else "") + how, paired, rho, vs_paper)
-
-
-# ---- Coverage by simulation (the module doc's table) -------------------------------------------------
-# Each entry: (sampler of B's distribution, its mean, sampler of A's distribution in the "diff" case, its mean).
-SKEWED: Dict[str, Tuple[Callable, float, Callable, float]] = {
-    "lognormal": (lambda r, n: r.lognormal(0.0, 1.0, n), math.exp(0.5),
-                  lambda r, n: r.lognormal(0.5, 1.0, n), math.exp(1.0)),
-    "exponential": (lambda r, n: r.exponential(1.0, n), 1.0,
-                    lambda r, n: r.exponential(2.0, n), 2.0),
-    "zero-infl. Poisson": (lambda r, n: (r.random(n) >= 0.3) * r.poisson(5.0, n).astype(float), 0.7 * 5,
-                           lambda r, n: (r.random(n) >= 0.3) * r.poisson(8.0, n).astype(float), 0.7 * 8),
-    "learned or not /20": (lambda r, n: np.where(r.random(n) < 0.5, r.binomial(20, 0.7, n),
-                                                 r.binomial(20, 0.1, n)).astype(float), 0.5 * 14 + 0.5 * 2,
-                           lambda r, n: np.where(r.random(n) < 0.7, r.binomial(20, 0.7, n),
-                                                 r.binomial(20, 0.1, n)).astype(float), 0.7 * 14 + 0.3 * 2),
-}
+                      ("paired " if paired else "") + how, paired, p, p_eq)
 
 
 # --------------------------------------------------------------------------- aggregates across tasks (rliable's)
@@ -415,49 +509,3 @@ def aggregate_ci(scores: np.ndarray, fn, resamples: int = 2_000, seed: int = 0, 
 def performance_profile(scores: np.ndarray, taus: np.ndarray) -> np.ndarray:
     """Fraction of runs (all tasks and seeds) scoring above each threshold tau (rliable's run-score profile)."""
     return (scores.reshape(-1)[None, :] > taus[:, None]).mean(axis=1)
-
-
-def coverage(dist: str, n: int, methods: Sequence[str], reps: int, resamples: int, shift: bool = False,
-             seed: int = 0, paired: bool = False) -> Dict[str, Tuple[float, float]]:
-    """{method: (coverage of the true mean difference, median width)} over ``reps`` simulated pairs.
-    ``paired``: seed s of both sides shares a prior term (3x a draw of B's distribution) and the interval is
-    taken on the per-seed differences, as ``compare(paired=True)`` does."""
-    gen_b, mu_b, gen_a, mu_a = SKEWED[dist]
-    if not shift:
-        gen_a, mu_a = gen_b, mu_b
-    rng = np.random.default_rng(seed)
-    pairs = [(gen_a(rng, n), gen_b(rng, n)) for _ in range(reps)]
-    if paired:
-        pairs = [(a - b, np.zeros(n)) for a, b in ((a + c, b + c) for (a, b), c in
-                                                    zip(pairs, (3 * gen_b(rng, n) for _ in range(reps))))]
-    out = {}
-    for m in methods:
-        cis = np.array([_diff_ci(a, b, resamples, i, 0.95, m)[:2] for i, (a, b) in enumerate(pairs)])
-        out[m] = (float(np.mean((cis[:, 0] <= mu_a - mu_b) & (mu_a - mu_b <= cis[:, 1]))),
-                  float(np.median(cis[:, 1] - cis[:, 0])))
-    return out
-
-
-def _main(argv=None) -> None:
-    p = argparse.ArgumentParser(description="Coverage of the difference-of-means CIs on skewed data.")
-    p.add_argument("--reps", type=int, default=2000)
-    p.add_argument("--resamples", type=int, default=2000)
-    p.add_argument("--n", type=int, nargs="+", default=[4, 6, 16])
-    p.add_argument("--methods", nargs="+", default=["percentile", "BCa", WELCH, "bootstrap-t", BOOT_T])
-    p.add_argument("--paired", action="store_true", help="both sides share each seed's prior (module doc)")
-    args = p.parse_args(argv)
-    short = {"percentile": "pct", "BCa": "BCa", WELCH: "welch", "bootstrap-t": "boot-t", BOOT_T: "sym boot-t"}
-    print(f"{'case':<5} {'data':<19} {'n':>3}  " + " ".join(f"{short.get(m, m):>10}" for m in args.methods)
-          + "  | median width / Welch's")
-    for shift in (False, True):
-        for dist in SKEWED:
-            for n in args.n:
-                res = coverage(dist, n, args.methods, args.reps, args.resamples, shift, paired=args.paired)
-                w_welch = res[WELCH][1] if WELCH in res else math.nan
-                print(f"{'diff' if shift else 'null':<5} {dist:<19} {n:>3}  "
-                      + " ".join(f"{res[m][0]:>10.3f}" for m in args.methods)
-                      + "  | " + " ".join(f"{res[m][1] / w_welch:.2f}" for m in args.methods), flush=True)
-
-
-if __name__ == "__main__":
-    _main()
