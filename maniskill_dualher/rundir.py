@@ -103,8 +103,8 @@ def _num(v):
         return v
 
 
-def read_metrics(run_dir: PathLike) -> List[Dict[str, float]]:
-    with open(Path(run_dir) / METRICS, newline="") as f:
+def read_metrics(run_dir: PathLike, name: str = METRICS) -> List[Dict[str, float]]:
+    with open(Path(run_dir) / name, newline="") as f:
         return [{k: _num(v) for k, v in r.items() if k is not None} for r in csv.DictReader(f)]
 
 

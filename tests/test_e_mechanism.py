@@ -134,3 +134,23 @@ def test_diagnostics_average_per_source_between_evaluations():
     assert row["E_qf_values"] == 3.0 and row["R_qf_values"] == 1.0
     d.load_state_dict(d.state_dict())
     assert d.close_window(200, 3)[-1] == {"env_steps": 200, "updates": 3}
+
+
+def test_diagnostics_become_scores_and_a_per_arm_table():
+    from maniskill_dualher.analysis.diagnostics import diagnostic_rows
+    from maniskill_dualher.analysis.runs import METRICS, Run
+    diag = [{"env_steps": 1000.0, "R_updates": 100.0, "R_td_abs": 1.0, "R_logged": 1.0, "R_alpha": 0.2, "E_updates": "",
+             "E_td_abs": "", "E_logged": "", "E_alpha": ""},
+            {"env_steps": 2000.0, "R_updates": 300.0, "R_td_abs": 3.0, "R_logged": 3.0, "R_alpha": 0.1,
+             "E_updates": 100.0, "E_td_abs": 0.5, "E_logged": 0.0, "E_alpha": ""}]
+    run = Run("r", RunConfig(), [], [], "", diag)
+    assert METRICS["diag_R_td_abs"][0](run) == pytest.approx((100 * 1 + 300 * 3) / 400)
+    assert METRICS["diag_R_alpha"][0](run) == pytest.approx((0.2 + 3 * 0.1) / 4)
+    assert METRICS["diag_E_td_abs"][0](run) == 0.5
+    assert np.isnan(METRICS["diag_E_alpha"][0](run))  # no logged E update
+    assert np.isnan(METRICS["diag_R_td_abs"][0](Run("old", RunConfig(), [], [])))  # made before diagnostics
+    cell = {"experiment": "x", "arm": "a", "method": "dual_buffer", "task": "T", "role": "adapt"}
+    scores = [{**cell, "metric": "diag_E_qf_values", "value": str(v), "run": f"r{i}"} for i, v in enumerate((1, 3))]
+    scores.append({**cell, "metric": "successful_train_episodes", "value": "9", "run": "r0"})
+    rows = diagnostic_rows(scores)
+    assert len(rows) == 1 and rows[0]["n"] == "2" and rows[0]["diag_E_qf_values"] == "2" and rows[0]["diag_R_alpha"] == ""

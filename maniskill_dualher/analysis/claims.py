@@ -188,6 +188,16 @@ CLAIMS: List[Claim] = [
           "", N, Side("e_share", "paper", DUAL), Side("e_share", "r_starved", DUAL), relative_margin=True,
           group="ablation", explains="in adaptation, adding E's batches to R's 0.6 updates per env step changes "
                                      "the count by"),
+    Claim("scratch_e_critic", "from scratch, E's batches training the critics only (no actor or alpha step) > "
+                              "the paper's E batches: successful episodes", "", N,
+          Side("mechanism", "e_critic", DUAL), Side("scratch", "paper", DUAL), relative_margin=True,
+          group="ablation", explains="from scratch, taking the actor and alpha steps off E's batches changes the "
+                                     "count by"),
+    Claim("adapt_e_critic", "in adaptation on the dual buffer's prior, E's batches training the critics only > "
+                            "the paper's E batches: successful episodes", "", N,
+          Side("e_share", "e_critic", DUAL), Side("e_share", "paper", DUAL), relative_margin=True,
+          group="ablation", explains="in adaptation, taking the actor and alpha steps off E's batches changes the "
+                                     "count by"),
     Claim("matched_prior", "with R's updates matched in every stage (1/0.6 per env step), the dual buffer's "
                            "prior > sac_her_per's, zero-shot on the target: does the prior catch up?", "",
           "step0_eval_success_rate", Side("matched_chain", "r_matched_all", DUAL), _t(HER), group="ablation",

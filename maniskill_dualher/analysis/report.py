@@ -27,6 +27,7 @@ from ..config import ConfigError
 from ..experiment.registry import default_experiments  # plain data: no torch, no simulator
 from ..fileio import atomic_write_text, csv_text, fmt
 from . import budget as budget_mod
+from . import diagnostics as diagnostics_mod
 from . import claims as claims_mod
 from . import plots, plots_budget, stats
 from .paper import PAPER_ADAPT_BUDGET, PAPER_ADAPT_STEPS, PAPER_TABLE3
@@ -293,6 +294,10 @@ def build_report(folder, resamples: int = 10_000, reference: Optional[Path] = No
     if budget_rows:
         atomic_write_text(folder / "budget.csv", csv_text(budget_rows, budget_mod.BUDGET_COLUMNS))
         written.append(folder / "budget.csv")
+    diag_rows = diagnostics_mod.diagnostic_rows(scores)
+    if diag_rows:
+        atomic_write_text(folder / "diagnostics.csv", csv_text(diag_rows, diagnostics_mod.COLUMNS))
+        written.append(folder / "diagnostics.csv")
     figures = []
     ablations = [e for e in dict.fromkeys(r["experiment"] for r in scores) if e not in default_experiments()]
     for name, fn in (("fig4_single_task.png", lambda p: plots.plot_fig4(curves, p, ref_curves)),

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import csv
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Dict, List, Optional, Tuple
 
@@ -32,6 +32,7 @@ class Run:
     rows: List[Dict[str, float]]       # metrics.csv, one per evaluation
     cells: List[dict]
     machine: str = ""                  # the CPU(s) it ran on, from provenance.json (" + " if resumed elsewhere)
+    diag: List[Dict[str, float]] = field(default_factory=list)  # diagnostics.csv (runs made since it exists)
 
     @property
     def trained_rows(self) -> List[Dict[str, float]]:
@@ -65,6 +66,25 @@ def _dip(r: Run) -> Tuple[float, float]:
     return depth, float(back[0]) if back else float(r.cfg.total_steps)
 
 
+DIAG_SOURCES = ("R", "E")
+DIAG_STATS = {"td_abs": ("updates", "|TD| (summed over the two critics)"), "alpha": ("logged", "alpha"),
+              "entropy": ("logged", "policy entropy (-log pi)"), "qf_values": ("logged", "mean Q")}
+
+
+def _diag(src: str, stat: str) -> Callable[[Run], float]:
+    """The learner's mean ``stat`` on batches from ``src`` over the run (weighted by the updates it averages;
+    NaN for runs without diagnostics.csv or without such batches)."""
+    weight = DIAG_STATS[stat][0]
+
+    def f(r: Run) -> float:
+        pairs = [(row.get(f"{src}_{weight}"), row.get(f"{src}_{stat}")) for row in r.diag]
+        pairs = [(float(w), float(v)) for w, v in pairs if isinstance(w, float) and isinstance(v, float) and w > 0
+                 and not math.isnan(v)]
+        total = sum(w for w, _ in pairs)
+        return sum(w * v for w, v in pairs) / total if total else math.nan
+    return f
+
+
 # metric name -> (one score per run, what it means)
 METRICS: Dict[str, Tuple[Callable[[Run], float], str]] = {
     "successful_train_episodes": (lambda r: r.rows[-1]["train_successes"],
@@ -84,6 +104,8 @@ METRICS: Dict[str, Tuple[Callable[[Run], float], str]] = {
                                 "evaluation success before any training (a transfer stage: the prior, zero-shot)"),
     "dip_depth": (lambda r: _dip(r)[0], "fall of evaluation success below its step-0 value (fine-tuning collapse)"),
     "dip_length": (lambda r: _dip(r)[1], "env steps until evaluation success is back at its step-0 value"),
+    **{f"diag_{src}_{stat}": (_diag(src, stat), f"learner diagnostics: {what} on batches from {src}")
+       for src in DIAG_SOURCES for stat, (_, what) in DIAG_STATS.items()},
 }
 
 
@@ -106,7 +128,8 @@ def load_runs(folder: Path) -> Tuple[List[Run], List[str]]:
             unfinished.append(rel)
             continue
         cfg = RunConfig.from_dict(rundir.read_json(d / rundir.CONFIG))
-        runs.append(Run(rel, cfg, rows, list(cell["cells"]), run_machine(d)))
+        diag = rundir.read_metrics(d, rundir.DIAGNOSTICS) if (d / rundir.DIAGNOSTICS).is_file() else []
+        runs.append(Run(rel, cfg, rows, list(cell["cells"]), run_machine(d), diag))
     return runs, unfinished
 
 
