@@ -193,3 +193,19 @@ def test_analysis_needs_no_torch_no_simulator():
         assert not bad, f"{m} imports {sorted(bad)}"
         todo += [i for i in imps if i in files]
     assert "maniskill_dualher.analysis.report" in seen and "maniskill_dualher.config" in seen
+
+
+def test_docs_experiment_table_is_the_registry():
+    """docs/experiments.md lists every experiment once, with every one of its arms, and nothing else."""
+    from pathlib import Path
+    from maniskill_dualher.experiment.registry import EXPERIMENTS
+    text = (Path(__file__).resolve().parents[1] / "docs" / "experiments.md").read_text()
+    rows = {}
+    for line in text.splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if line.startswith("| `") and len(cells) == 3:
+            rows[cells[0].strip("`")] = cells[1]
+    assert set(rows) == set(EXPERIMENTS)
+    for name, exp in EXPERIMENTS.items():
+        for arm in exp.arms:
+            assert arm.name in rows[name], f"docs/experiments.md: experiment {name} does not list arm {arm.name}"
