@@ -461,3 +461,13 @@ def _main(argv=None) -> None:
 
 if __name__ == "__main__":
     _main()
+
+
+def wilson(successes: int, n: int, level: float = 0.95) -> Tuple[float, float]:
+    """Wilson score interval of a binomial proportion successes/n: always inside [0, 1] (evaluate, plots)."""
+    k, n = int(successes), int(n)
+    if n < 1 or not 0 <= k <= n:
+        raise ValueError(f"wilson needs 0 <= successes <= n and n >= 1, got {k}/{n}")
+    from scipy.stats import binomtest
+    ci = binomtest(k, n).proportion_ci(confidence_level=level, method="wilson")
+    return float(ci.low), float(ci.high)

@@ -22,8 +22,8 @@ SINGLE_METRICS = ["final_eval_success_rate", "mean_eval_success_rate", "mean_eva
 GROUP_KEYS = ("experiment", "arm", "task", "chain", "method", "variant", "role")
 
 
-def mean_ci(x: Sequence[float]) -> Tuple[float, float]:
-    """95% Student-t interval of a mean over seeds (NaN below 2 seeds; the point if there is no spread)."""
+def mean_ci(x: Sequence[float], level: float = 0.95) -> Tuple[float, float]:
+    """Student-t interval of a mean over seeds (NaN below 2 seeds; the point if there is no spread)."""
     from scipy import stats as st
     x = np.asarray(x, float)
     if x.size < 2:
@@ -31,7 +31,7 @@ def mean_ci(x: Sequence[float]) -> Tuple[float, float]:
     se = x.std(ddof=1) / math.sqrt(x.size)
     if se == 0:
         return float(x.mean()), float(x.mean())
-    h = float(st.t.ppf(0.975, x.size - 1) * se)
+    h = float(st.t.ppf(0.5 + level / 2, x.size - 1) * se)
     return float(x.mean() - h), float(x.mean() + h)
 
 
