@@ -323,3 +323,30 @@ def test_provenance_and_tensorboard_extras(trained):
     assert any(t.startswith("config") for t in tags["tensors"])
     rates = [e.value for e in ea.Scalars("charts/train_success_rate")]
     assert len(rates) == 2 and all(0 <= v <= 1 for v in rates)
+
+
+# --------------------------------------------------------------------------- policies in the box
+POLICIES = sorted((Path(__file__).resolve().parents[1] / "results" / "policies").glob("*/*/policy.pt"))
+
+
+def test_committed_policies_are_small_documented_and_load():
+    """Every results/policies/<task>/<method>/policy.pt is actor-only, < 200 KB, and its policy.json names the same
+    task and method and a held-out evaluation (seeds that no training evaluation used)."""
+    assert POLICIES, "no committed policy"
+    for p in POLICIES:
+        assert p.stat().st_size < 200_000, p
+        doc = json.loads((p.parent / "policy.json").read_text())
+        pol = load_policy(p.parent)
+        assert (doc["task"], doc["method"]) == (pol.env_id, pol.config["method"]) == (p.parent.parent.name,
+                                                                                      p.parent.name)
+        h = doc["held_out_evaluation"]
+        assert int(h["seeds"].split("..")[0]) == HELDOUT_SEED_BASE and h["successes"] <= h["episodes"]
+        assert "checkpoint" not in pol.meta and set(torch.load(p, weights_only=False)) >= {"actor", "input_dim"}
+
+
+def test_a_committed_policy_evaluates_on_held_out_seeds():
+    p = next(p for p in POLICIES if p.parent.parent.name == "ReachTarget-v1")
+    r = cli(p.parent, "--episodes", "3", "--json")
+    assert r.returncode == 0, r.stderr
+    d = json.loads(r.stdout)
+    assert d["seed_set"] == "held-out" and d["episodes"] == 3 and 0.0 <= d["success_ci"][0] <= d["success_ci"][1] <= 1
