@@ -10,11 +10,21 @@ import sys
 from pathlib import Path
 
 from .cmdline import OneLineParser  # noqa: F401 (train's parser; evaluate imports it from here)
-from .config import ConfigError, ReplayConfig, RunConfig, SACConfig, field_docs
+from .config import (DUAL_MODES, E_BATCHES, HER_STRATEGIES, MATMUL_PRECISIONS, SAC_VARIANTS, SIM_BACKENDS, SUCCESS_BUFFER_MODES,
+                     UPDATE_IMPLS, UPDATE_SCHEDULES, ConfigError, ReplayConfig, RunConfig, SACConfig, field_docs,
+                     format_ratio)
 
 # --------------------------------------------------------------------------- python -m maniskill_dualher.train
 _SECTIONS = {"sac": SACConfig, "replay": ReplayConfig}
-_ALIASES = {"env_id": "env", "total_steps": "steps"}
+# --- issue 31 (one CLI vocabulary): the sweep's spellings are the main names (--task as sweep's --tasks;
+# --total-steps, since sweep's --steps is a source-stage budget); the old spellings stay as aliases.
+_ALIASES = {"env_id": "task", "total_steps": "total-steps"}
+_OLD_SPELLINGS = {"env_id": ("--env",), "total_steps": ("--steps",)}
+# every enumerated field lists its choices in --help and refuses others in one line (argparse choices)
+_CHOICES = {"variant": SAC_VARIANTS, "her_strategy": HER_STRATEGIES, "dual_mode": DUAL_MODES,
+            "update_schedule": UPDATE_SCHEDULES, "matmul_precision": MATMUL_PRECISIONS, "update_impl": UPDATE_IMPLS,
+            "success_buffer": SUCCESS_BUFFER_MODES, "sim_backend": SIM_BACKENDS, "e_batches": E_BATCHES}
+# --- end issue 31
 
 
 def _field_flags(parser: argparse.ArgumentParser) -> None:
@@ -29,12 +39,16 @@ def _field_flags(parser: argparse.ArgumentParser) -> None:
             name = _ALIASES.get(f.name, f.name).replace("_", "-")
             dest = f"{section}.{f.name}"
             default = f.default if f.default is not dataclasses.MISSING else f.default_factory()  # type: ignore
-            shown = ",".join(map(str, default)) if isinstance(default, tuple) else default
+            shown = (format_ratio(default) if f.name == "ratio" else ",".join(map(str, default))) \
+                if isinstance(default, tuple) else default
             help_ = f"{docs.get(f.name, '')} [default: {shown}]".replace("%", "%%")
+            flags = (f"--{name}",) + _OLD_SPELLINGS.get(f.name, ())
             if isinstance(default, bool) or f.name in ("learn_alpha",):
-                g.add_argument(f"--{name}", dest=dest, action=argparse.BooleanOptionalAction, default=None, help=help_)
+                g.add_argument(*flags, dest=dest, action=argparse.BooleanOptionalAction, default=None, help=help_)
+            elif f.name in _CHOICES:
+                g.add_argument(*flags, dest=dest, default=None, choices=_CHOICES[f.name], help=help_)
             else:
-                g.add_argument(f"--{name}", dest=dest, default=None, metavar=f.name.upper(), help=help_)
+                g.add_argument(*flags, dest=dest, default=None, metavar=f.name.upper(), help=help_)
 
 
 def train_config(args: argparse.Namespace) -> RunConfig:
@@ -83,7 +97,8 @@ def train_parser() -> argparse.ArgumentParser:
                     "env with a Box action space. Running again on the same --out resumes.")
     p.add_argument("--out", required=True, help="run folder (created; resumed if it holds a checkpoint)")
     p.add_argument("--config", help="JSON file with a RunConfig (flags override it)")
-    p.add_argument("--preset", help="start from a sweep preset's settings and this task's single-task budget "
+    from .experiment.presets import PRESETS  # issue 31: --preset lists its choices
+    p.add_argument("--preset", choices=list(PRESETS), help="start from a sweep preset's settings and this task's single-task budget "
                                     "(quick: settings that learn in minutes; without it the defaults are the "
                                     "paper's Table 3, which learned nothing in 20k env steps on ReachTarget)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE",

@@ -41,8 +41,9 @@ Reward modes (``reward_mode=``):
 episodes on it when ``RunConfig.terminate_on_success`` (the paper), or ignores it (fixed-length episodes).
 
 There is no render device on the development machines: scenes are built from collision shapes;
-visual shapes are added only if ``scene.can_render()`` (see :func:`build_primitive`). Rendering or
-camera observations without a render device raise one clear ``ValueError``; ``render_backend``
+visual shapes are added only if ``scene.can_render()`` (see :func:`build_primitive`). Camera observations
+without a render device raise one clear ``ValueError`` at construction; ``render_mode="rgb_array"`` is
+accepted and ``render()`` raises it only when a frame is asked for; ``render_backend``
 defaults to "none" there (ManiSkill's default "gpu" would fail inside Vulkan).
 
 Everything is batched over ``num_envs`` (torch tensors on ``self.device``), so ``physx_cuda`` with
@@ -252,8 +253,7 @@ def _validate_env_args(cls_name: str, robot_uids, num_envs, obs_mode, reward_mod
     if render_mode is not None:
         if render_mode not in RENDER_MODES:
             raise ValueError(f"render_mode={render_mode!r} is not one of {RENDER_MODES} or None")
-        if not can_render:
-            raise ValueError(f"render_mode={render_mode!r} needs a render device but none was found; use render_mode=None")
+        # no device: accepted here (ManiSkill's tools ask for "rgb_array" by default); render() refuses a frame
     if render_backend is None:  # auto: render where possible, else simulate only
         return "gpu" if render_device_available() else "none"
     if render_backend != "none" and not render_device_available():
@@ -316,6 +316,14 @@ class PandaGoalEnv(BaseEnv):
             return []
         pose = sapien_utils.look_at([0.6, 0.7, 0.6], [0.0, 0.0, 0.35])
         return CameraConfig("render_camera", pose=pose, width=512, height=512, fov=1, near=0.01, far=100)
+
+    def render(self):
+        """A frame, where a render device exists; without one, a ValueError only when a frame is asked for, so
+        tools that pass render_mode="rgb_array" by default (ManiSkill's replay_trajectory) still simulate."""
+        if self.render_mode is not None and self.backend.render_device is None:
+            raise ValueError(f"render_mode={self.render_mode!r}: no render device was found, so no frame can be "
+                             "drawn (simulation works; use render_mode=None)")
+        return super().render()
 
     def _load_agent(self, options: dict):
         super()._load_agent(options, ROBOT_BASE_POSE)

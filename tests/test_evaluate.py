@@ -12,7 +12,8 @@ import torch
 from maniskill_dualher import rundir
 from maniskill_dualher.config import ConfigError, ReplayConfig, RunConfig, SACConfig
 from maniskill_dualher.envs import EVAL_SEED_BASE
-from maniskill_dualher.evaluate import _episode, evaluate_policy, main, make_eval_env, success_ci, zero_shot_matrix
+from maniskill_dualher.evaluate import (HELDOUT_SEED_BASE, _episode, evaluate_policy, main, make_eval_env, success_ci,
+                                        zero_shot_matrix)
 from maniskill_dualher.policy import Policy, load_policy, save_policy
 from maniskill_dualher.train import Trainer, run_one, run_training
 
@@ -159,7 +160,8 @@ def test_evaluation_replays_the_runs_own_evaluation(trained):
             np.testing.assert_array_equal(mine["flats"][0, :40], ep.obs[0, 0])
     finally:
         env.close()
-    r = evaluate_policy(pol, episodes=trained["cfg"].eval_episodes)
+    r = evaluate_policy(pol, episodes=trained["cfg"].eval_episodes, seed=EVAL_SEED_BASE)
+    assert r["seed_set"] == "training evaluation"
     final = trained["final"]
     assert r["success_rate"] == final["eval_success_rate"]
     assert r["mean_return"] == final["eval_return"]
@@ -184,12 +186,27 @@ def test_cli_own_task_and_zero_shot(trained):
     r = cli(trained["out"], "--episodes", "2")
     assert r.returncode == 0, r.stderr
     assert "ReachTarget-v1" in r.stdout and "success" in r.stdout and "95% CI [" in r.stdout and "(Wilson)" in r.stdout
-    r = cli(trained["out"], "--env", "CloseMicrowave-v1", "--episodes", "2", "--best", "--json")
+    assert f"held-out seeds (no training evaluation used them): {HELDOUT_SEED_BASE}..{HELDOUT_SEED_BASE + 1}" \
+        in r.stdout
+    r = cli(trained["out"], "--task", "CloseMicrowave-v1", "--episodes", "2", "--best", "--json")
     assert r.returncode == 0, r.stderr
     d = json.loads(r.stdout)
     assert d["env_id"] == "CloseMicrowave-v1" and d["source_env_id"] == "ReachTarget-v1" and d["zero_shot"]
     assert d["episodes"] == 2 and len(d["success_ci"]) == 2 and d["policy"].endswith("policy_best.pt")
-    assert [e["seed"] for e in d["per_episode"]] == [EVAL_SEED_BASE, EVAL_SEED_BASE + 1]
+    assert [e["seed"] for e in d["per_episode"]] == [HELDOUT_SEED_BASE, HELDOUT_SEED_BASE + 1]
+    assert d["seed_set"] == "held-out"
+
+
+def test_cli_train_eval_seeds_reproduce_the_runs_evaluation(trained):
+    """--train-eval-seeds: the training evaluations' seeds, named so; its success is the run's last evaluation."""
+    n = trained["cfg"].eval_episodes
+    r = cli(trained["out"], "--env", "ReachTarget-v1", "--episodes", n, "--train-eval-seeds", "--json")
+    assert r.returncode == 0, r.stderr
+    d = json.loads(r.stdout)
+    assert [e["seed"] for e in d["per_episode"]] == [EVAL_SEED_BASE + i for i in range(n)]
+    assert d["seed_set"] == "training evaluation" and d["success_rate"] == trained["final"]["eval_success_rate"]
+    r = cli(trained["out"], "--episodes", 1, "--train-eval-seeds")
+    assert "the training evaluations' seeds (reproduces the run's own evaluation)" in r.stdout
 
 
 @pytest.mark.parametrize("args, needle", [
@@ -201,6 +218,7 @@ def test_cli_own_task_and_zero_shot(trained):
     (["{run}", "--movie", "{tmp}/x.png"], "x.png"),
     (["{run}", "--movie", "{tmp}/x.gif", "--episodes", "2", "--movie-episode", "2"], "movie-episode"),
     (["{run}", "--no-such-flag"], "--no-such-flag"),
+    (["{run}", "--train-eval-seeds", "--seed", "5"], "--seed"),
     ([], "run folder"),
     (["--zero-shot-matrix", "{empty}"], "no finished run"),
 ])
@@ -229,11 +247,11 @@ def test_movie_and_trajectory_files(trained, tmp_path):
     gif = tmp_path / "m.gif"
     assert gif.is_file() and gif.stat().st_size < 1_000_000
     im = Image.open(gif)
-    assert im.n_frames == r["per_episode"][0]["length"] + 1 and im.size == (384, 288)
+    assert im.n_frames == r["per_episode"][0]["length"] + 1 and im.size == (800, 600)
     h5 = Path(r["trajectory"])
     assert h5.suffix == ".h5" and h5.is_file()
     meta = json.loads(h5.with_suffix(".json").read_text())
-    assert [e["episode_seed"] for e in meta["episodes"]] == [EVAL_SEED_BASE, EVAL_SEED_BASE + 1]
+    assert [e["episode_seed"] for e in meta["episodes"]] == [HELDOUT_SEED_BASE, HELDOUT_SEED_BASE + 1]
     assert meta["env_info"]["env_id"] == "CloseBox-v1" and "render_backend" not in meta["env_info"]["env_kwargs"]
     with h5py.File(h5, "r") as f:
         assert sorted(f) == ["traj_0", "traj_1"]
@@ -245,6 +263,20 @@ def test_movie_and_trajectory_files(trained, tmp_path):
     data = (tmp_path / "m.mp4").read_bytes()
     assert data[4:8] == b"ftyp" and len(data) < 1_000_000
     assert not list(tmp_path.glob(".*tmp*"))  # no temp files left
+
+
+def test_maniskill_replay_tool_replays_a_recorded_trajectory(trained, tmp_path):
+    """ManiSkill's own replay tool, its defaults (render_mode="rgb_array", replay by actions) except the path, after
+    importing our tasks: it replays every recorded episode, and each reaches the recorded outcome."""
+    r = evaluate_policy(trained["out"], "ReachTarget-v1", episodes=2, record=tmp_path / "rec")
+    h5 = Path(r["trajectory"])
+    code = ("import maniskill_dualher.tasks, runpy; "
+            "runpy.run_module('mani_skill.trajectory.replay_trajectory', run_name='__main__')")
+    p = subprocess.run([sys.executable, "-c", code, "--traj-path", str(h5)], capture_output=True, text=True,
+                       timeout=300, cwd=tmp_path)
+    assert p.returncode == 0, p.stderr[-2000:]
+    k = sum(e["success"] for e in r["per_episode"])
+    assert f"Replayed 2 episodes, {k}/2=" in p.stdout + p.stderr
 
 
 def test_zero_shot_matrix(trained, tmp_path):
@@ -291,3 +323,30 @@ def test_provenance_and_tensorboard_extras(trained):
     assert any(t.startswith("config") for t in tags["tensors"])
     rates = [e.value for e in ea.Scalars("charts/train_success_rate")]
     assert len(rates) == 2 and all(0 <= v <= 1 for v in rates)
+
+
+# --------------------------------------------------------------------------- policies in the box
+POLICIES = sorted((Path(__file__).resolve().parents[1] / "results" / "policies").glob("*/*/policy.pt"))
+
+
+def test_committed_policies_are_small_documented_and_load():
+    """Every results/policies/<task>/<method>/policy.pt is actor-only, < 200 KB, and its policy.json names the same
+    task and method and a held-out evaluation (seeds that no training evaluation used)."""
+    assert POLICIES, "no committed policy"
+    for p in POLICIES:
+        assert p.stat().st_size < 200_000, p
+        doc = json.loads((p.parent / "policy.json").read_text())
+        pol = load_policy(p.parent)
+        assert (doc["task"], doc["method"]) == (pol.env_id, pol.config["method"]) == (p.parent.parent.name,
+                                                                                      p.parent.name)
+        h = doc["held_out_evaluation"]
+        assert int(h["seeds"].split("..")[0]) == HELDOUT_SEED_BASE and h["successes"] <= h["episodes"]
+        assert "checkpoint" not in pol.meta and set(torch.load(p, weights_only=False)) >= {"actor", "input_dim"}
+
+
+def test_a_committed_policy_evaluates_on_held_out_seeds():
+    p = next(p for p in POLICIES if p.parent.parent.name == "ReachTarget-v1")
+    r = cli(p.parent, "--episodes", "3", "--json")
+    assert r.returncode == 0, r.stderr
+    d = json.loads(r.stdout)
+    assert d["seed_set"] == "held-out" and d["episodes"] == 3 and 0.0 <= d["success_ci"][0] <= d["success_ci"][1] <= 1

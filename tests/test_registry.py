@@ -73,7 +73,7 @@ def test_a_registered_method_takes_part_everywhere(registered, tmp_path, monkeyp
     t5 = _rows(out / "table5_multitask.csv")
     assert {(r["experiment"], r["chain"]) for r in t5 if r["method"] == "sac_her"} == {
         ("transfer", " > ".join(TASKS)), ("scratch", TASKS[-1])}
-    assert "sac_her" in labels and "sac_her from scratch" in labels   # Fig. 4 and Fig. 5 curves
+    assert "SAC+HER" in labels and "SAC+HER, from scratch" in labels   # Fig. 4 and Fig. 5: display names
     assert color_of("sac_her") == "tab:green"
     assert "sac_her" in (out / "summary.md").read_text()
     assert list((out / "runs" / "chain").glob("sac_her-s0/stage2-*"))
@@ -106,7 +106,7 @@ def test_an_experiment_with_arms_is_one_registry_entry(tmp_path, monkeypatch):
             for p in (out / "runs").rglob("config.json") if p.parent.name.startswith("stage2")}
     assert cfgs["e_off"]["replay"]["ratio"] == [1.0, 0.0] and cfgs["warm"]["sac"]["random_steps"] == 0
     assert cfgs["paper"]["replay"]["ratio"] == [0.6, 0.4] and cfgs["paper"]["sac"]["random_steps"] == 100
-    assert {"dual_buffer e_off", "dual_buffer warm"} <= set(labels)
+    assert {"dual buffer, e off", "dual buffer, warm"} <= set(labels)   # display names
     assert (out / "fig6_ablations.png").is_file()
     row = next(r for r in _rows(out / "claims.csv") if r["claim"] == "mine")
     assert row["n_a"] == "2" and row["n_b"] == "2" and row["side_a"] == "dual_buffer my_ablation/e_off"

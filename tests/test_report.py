@@ -84,12 +84,15 @@ def test_tables_hold_the_final_rows_aggregated_over_seeds(folder):
     assert row["paper"] == "250" and row["variant"] == "0.6/0.4" and row["experiment"] == "transfer"
     assert 6 < float(row["ci95_low"]) < 12 < float(row["ci95_high"]) < 18    # t interval, 2 dof
     # mean over each run's evaluations (area under the curve): returns [0, 0.5], [0, 1], [0, 1.5]
-    assert float(t5[("sac_her_per", "mean_eval_return")]["mean"]) == 0.5
+    assert float(t5[("sac_her_per", "mean_eval_success_rate")]["mean"]) == pytest.approx(0.05)
+    assert not any(m == "mean_eval_return" for _, m in t5)   # equal to the success rate here: not tabled twice
+    rate = t5[("dual_buffer", "final_eval_success_rate")]     # a rate's interval: bootstrap, inside [0, 1]
+    assert 0.0 <= float(rate["ci95_low"]) <= float(rate["mean"]) <= float(rate["ci95_high"]) <= 1.0
     assert t5[("sac_her_per", "successful_train_episodes")]["paper"] == "<45"
     t4 = _table(folder / "table4_sampling_ratio.csv")
     assert [(r["arm"], float(r["mean"]), r["paper"]) for r in t4] == [("0.5/0.5", 6.0, "154"), ("0.6/0.4", 12.0, "250")]
     single = {(r["method"], r["metric"]): r for r in _table(folder / "single_task.csv")}
-    assert float(single[("dual_buffer", "mean_eval_return")]["mean"]) == 3.0   # curves [0, 5], [0, 6], [0, 7]
+    assert float(single[("dual_buffer", "mean_eval_success_rate")]["mean"]) == pytest.approx(0.3)  # [0, .5..7]
     assert float(single[("sac", "final_eval_success_rate")]["mean"]) == pytest.approx(0.1)
     assert {r["task"] for r in single.values()} == {"CloseBox-v1"}          # the source stage is not a single run
 

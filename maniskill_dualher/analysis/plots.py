@@ -1,6 +1,18 @@
-"""Figures from ``curves.csv`` (one row per evaluation of a run, per cell): mean over seeds with a 95%
-band at the evaluation points every seed of a curve has. Colours: a method's registry colour for its
-paper arm, a fixed extra colour per other label."""
+"""Figures from ``curves.csv`` (one row per evaluation of a run, per cell) and ``scores.csv``, sized for a paper.
+
+* Curves: the mean over seeds with a 95% percentile-bootstrap band over seeds (``mean_band``), at the
+  evaluation points every seed of a curve has: a band of a success rate stays in [0, 1].
+* Names: methods by their registry display name (``methods.METHOD_SPECS``), experiments and arms by their
+  registry label (``experiment/registry.py``; an optional ``label`` field, else the name).
+* Colours: one per arm in every figure. A method's paper treatment (an arm whose settings change nothing,
+  in a chain or single-task experiment) is drawn in the method's registry colour; every other arm gets the
+  registry's ``color`` if it has one, else a fixed colour from ``ARM_PALETTE`` in registry order. Line style
+  tells the methods apart (``METHOD_STYLES``), so one arm of two methods shares its colour.
+* Only what differs: success is shown, the evaluation return is not (sparse reward and episodes that end on
+  success make them equal).
+
+The report calls ``plot_fig4``, ``plot_fig5``, ``plot_ablations`` and ``plot_aggregate``.
+"""
 from __future__ import annotations
 
 from collections import defaultdict
@@ -9,65 +21,161 @@ from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from ..config import TASKS
+from ..config import TASKS, RunConfig
+from ..experiment.registry import EXPERIMENTS, KINDS, PAPER_ARM
 from ..fileio import atomic_write_with
 from ..methods import METHOD_SPECS
-from .tables import mean_ci
 
-EXTRA_COLORS = ("tab:purple", "tab:brown", "tab:green", "tab:red", "tab:pink", "tab:olive", "tab:cyan")
-_EXTRA_ASSIGNED: Dict[str, str] = {}
+SINGLE_KIND, CHAIN_KIND, SCRATCH_KIND = KINDS
+LEVEL = 0.95
+RESAMPLES = 2_000
+DPI = 200
+FONT = {"font.size": 9, "axes.titlesize": 9.5, "axes.labelsize": 9, "xtick.labelsize": 8, "ytick.labelsize": 8,
+        "legend.fontsize": 8, "figure.titlesize": 10}
+# Distinct colours for non-paper arms; the methods' own colours (tab:blue, tab:orange, tab:gray) left out.
+ARM_PALETTE = ("#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#bcbd22", "#17becf", "#98df8a",
+               "#ff9896", "#c5b0d5", "#c49c94", "#f7b6d2", "#dbdb8d", "#9edae5", "#1b9e77", "#cc6677",
+               "#7570b3", "#e7298a", "#66a61e", "#e6ab02", "#a6761d", "#000080", "#800000", "#008080",
+               "#808000", "#4b0082", "#ff1493", "#2f4f4f")
+METHOD_STYLES = ("-", "--", "-.", ":")   # from the last registered method (the paper's) backwards: it is solid
+METHOD_MARKERS = ("o", "s", "^", "D")
 
 
-def color_of(method: str, arm: str = "paper") -> str:
+# --------------------------------------------------------------------------- names and colours (registry)
+def method_label(method: str) -> str:
     spec = METHOD_SPECS.get(method)
-    if spec is not None and arm in ("paper", "0.6/0.4"):
-        return spec.color
-    key = f"{method} {arm}"
-    if key not in _EXTRA_ASSIGNED:
-        _EXTRA_ASSIGNED[key] = EXTRA_COLORS[len(_EXTRA_ASSIGNED) % len(EXTRA_COLORS)]
-    return _EXTRA_ASSIGNED[key]
+    return spec.display if spec else method
 
 
-def save_figure(fig, path: Path) -> None:
-    atomic_write_with(path, lambda tmp: fig.savefig(tmp, format="png", dpi=110, bbox_inches="tight",
-                                                     metadata={"Software": None}))
+def _arm_obj(experiment: str, arm: str):
+    e = EXPERIMENTS.get(experiment)
+    return next((a for a in e.arms if a.name == arm), None) if e else None
 
 
-def curves_by(curves: Sequence[Dict[str, str]], where, label) -> Dict[str, Dict[int, Dict[int, dict]]]:
-    """label -> seed -> nominal env step -> curve row."""
-    out: Dict[str, Dict[int, Dict[int, dict]]] = defaultdict(lambda: defaultdict(dict))
-    for r in curves:
-        if where(r):
-            out[label(r)][int(r["seed"])].setdefault(int(r["env_steps"]), r)
+def experiment_label(experiment: str) -> str:
+    e = EXPERIMENTS.get(experiment)
+    return (getattr(e, "label", None) or e.title) if e else experiment
+
+
+def arm_label(experiment: str, arm: str) -> str:
+    """The arm's display label: registry ``label``, else its name; a paper treatment says so."""
+    a = _arm_obj(experiment, arm)
+    if a is not None and getattr(a, "label", None):
+        return a.label
+    if is_paper_treatment(experiment, arm):
+        return "paper's settings"
+    e = EXPERIMENTS.get(experiment)
+    if e is not None and e.kind == SCRATCH_KIND and arm == PAPER_ARM:
+        return "from scratch"
+    return arm.replace("_", " ")
+
+
+def is_paper_treatment(experiment: str, arm: str) -> bool:
+    """An arm of a single-task or chain experiment whose settings leave every stage as the paper arm's."""
+    from ..experiment import overrides
+    e, a = EXPERIMENTS.get(experiment), _arm_obj(experiment, arm)
+    if e is None or a is None or e.kind == SCRATCH_KIND:
+        return False
+    if a.adapt_steps_factor != 1.0 or a.prior_method is not None:
+        return False
+    base = RunConfig()
+    for stage in range(3):
+        if overrides.apply(base, overrides.parse_all(a.settings), stage, 3).to_dict() != base.to_dict():
+            return False
+    return True
+
+
+def _arm_colours() -> Dict[Tuple[str, str], str]:
+    out, k = {}, 0
+    for e in EXPERIMENTS.values():
+        for a in e.arms:
+            if is_paper_treatment(e.name, a.name):
+                continue
+            c = getattr(a, "color", None)
+            if not c:
+                c, k = ARM_PALETTE[k % len(ARM_PALETTE)], k + 1
+            out[(e.name, a.name)] = c
     return out
 
 
-def band(by_seed: Dict[int, Dict[int, dict]], key: str):
+def color_of(method: str, arm: str = PAPER_ARM, experiment: Optional[str] = None) -> str:
+    """One colour per arm in every figure: the method's colour for its paper treatment, else the arm's."""
+    spec = METHOD_SPECS.get(method)
+    if experiment is None or is_paper_treatment(experiment, arm):
+        return spec.color if spec is not None else "black"
+    return _arm_colours().get((experiment, arm), "black")
+
+
+def style_of(method: str) -> Tuple[str, str]:
+    """(line style, marker) of a method: tells two methods of one arm apart."""
+    names = list(METHOD_SPECS)[::-1]
+    i = names.index(method) if method in names else len(names)
+    return METHOD_STYLES[i % len(METHOD_STYLES)], METHOD_MARKERS[i % len(METHOD_MARKERS)]
+
+
+# --------------------------------------------------------------------------- data
+def save_figure(fig, path: Path) -> None:
+    atomic_write_with(path, lambda tmp: fig.savefig(tmp, format="png", dpi=DPI, bbox_inches="tight",
+                                                     metadata={"Software": None}))
+
+
+def curves_by(curves: Sequence[Dict[str, str]], where, key) -> Dict[tuple, Dict[int, Dict[int, dict]]]:
+    """key(row) -> seed -> nominal env step -> curve row."""
+    out: Dict[tuple, Dict[int, Dict[int, dict]]] = defaultdict(lambda: defaultdict(dict))
+    for r in curves:
+        if where(r):
+            out[key(r)][int(r["seed"])].setdefault(int(r["env_steps"]), r)
+    return out
+
+
+def boot_mean_ci(y: np.ndarray, level: float = LEVEL, resamples: int = RESAMPLES, seed: int = 0):
+    """Percentile-bootstrap interval of the mean over rows (seeds) of ``y`` (seeds, points), per column: inside the
+    values' range, so a success rate's band stays in [0, 1]. One seed: the point itself."""
+    y = np.asarray(y, float)
+    if y.shape[0] < 2:
+        return y[0], y[0]
+    idx = np.random.default_rng(seed).integers(0, y.shape[0], (resamples, y.shape[0]))
+    means = y[idx].mean(axis=1)
+    q = (1 - level) / 2
+    return np.quantile(means, q, axis=0), np.quantile(means, 1 - q, axis=0)
+
+
+def mean_band(by_seed: Dict[int, Dict[int, dict]], key: str):
     steps = sorted(set.intersection(*[set(v) for v in by_seed.values()]))
+    if not steps:
+        return np.array([]), np.array([]), np.array([]), np.array([])
     y = np.array([[float(by_seed[s][t][key]) for t in steps] for s in sorted(by_seed)])
-    lo, hi = zip(*[mean_ci(y[:, j]) if y.shape[0] > 1 else (y[0, j], y[0, j]) for j in range(len(steps))]) \
-        if steps else ((), ())
-    return np.array(steps), y.mean(axis=0) if steps else np.array([]), np.array(lo), np.array(hi)
+    lo, hi = boot_mean_ci(y)
+    return np.array(steps), y.mean(axis=0), lo, hi
 
 
-def draw(ax, groups: Dict[str, Dict[int, Dict[int, dict]]], key: str, title: str, ylabel: str,
-         styles: Optional[Dict[str, Tuple[str, str]]] = None,
-         reference: Optional[Dict[str, Dict[int, Dict[int, dict]]]] = None) -> None:
-    for label, by_seed in groups.items():
-        x, m, lo, hi = band(by_seed, key)
-        color, ls = (styles or {}).get(label, (None, "-"))
-        (line,) = ax.plot(x, m, marker="o", ms=3, label=f"{label} (n={len(by_seed)})", color=color, linestyle=ls)
-        ax.fill_between(x, lo, hi, color=line.get_color(), alpha=0.2)
+def _kilo(ax) -> None:
+    """Env-step ticks as 0, 4k, 8k, ...: at most 5 ticks, so long budgets never run together."""
+    from matplotlib.ticker import FuncFormatter, MaxNLocator
+    ax.xaxis.set_major_locator(MaxNLocator(nbins=5, steps=[1, 2, 2.5, 4, 5, 10]))
+    ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v / 1000:g}k" if v else "0"))
+
+
+def draw(ax, groups: Dict[str, Tuple[Dict[int, Dict[int, dict]], str, str, str]], key: str, title: str,
+         ylabel: str, rate: bool = False, reference: Optional[Dict[str, Dict[int, Dict[int, dict]]]] = None,
+         with_n: bool = True) -> None:
+    """``groups``: legend label -> (seed -> step -> row, colour, line style, marker); ``with_n``: seeds in the label."""
+    for label, (by_seed, color, ls, marker) in groups.items():
+        x, m, lo, hi = mean_band(by_seed, key)
+        ax.plot(x, m, marker=marker, ms=2.5, lw=1.4, label=f"{label} (n={len(by_seed)})" if with_n else label,
+                color=color, linestyle=ls)
+        ax.fill_between(x, lo, hi, color=color, alpha=0.15, lw=0)
     for label, by_seed in (reference or {}).items():
-        x, m, _, _ = band(by_seed, key)
-        ax.plot(x, m, color="black", alpha=0.5, linestyle=":", label=f"reference: {label} (n={len(by_seed)})")
-    ax.set_title(title, fontsize=10)
+        x, m, _, _ = mean_band(by_seed, key)
+        ax.plot(x, m, color="black", alpha=0.5, linestyle=":", lw=1, label=f"reference: {label} (n={len(by_seed)})")
+    ax.set_title(title)
     ax.set_xlabel("environment steps")
     ax.set_ylabel(ylabel)
     ax.grid(alpha=0.3)
-    if groups:
-        ax.legend(fontsize=7)
-    else:
+    _kilo(ax)
+    if rate:
+        ax.set_ylim(-0.03, 1.03)
+    if not groups:
         ax.text(0.5, 0.5, "no finished runs", ha="center", va="center", transform=ax.transAxes)
 
 
@@ -75,136 +183,293 @@ def _plt():
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    plt.rcParams.update(FONT)
     return plt
 
 
+def _task_order(t: str) -> int:
+    return TASKS.index(t) if t in TASKS else len(TASKS)
+
+
+def _experiments(kind: str, default: Optional[bool] = None) -> List[str]:
+    return [n for n, e in EXPERIMENTS.items() if e.kind == kind and (default is None or e.default == default)]
+
+
+def _legend_below(fig, axes, ncol: int) -> None:
+    """One legend for the figure, below it (labels of every panel, each once)."""
+    seen: Dict[str, object] = {}
+    for ax in np.ravel(axes):
+        for h, lab in zip(*ax.get_legend_handles_labels()):
+            seen.setdefault(lab, h)
+    if seen:
+        fig.legend(list(seen.values()), list(seen), loc="upper center", bbox_to_anchor=(0.5, 0.0), ncol=ncol,
+                   frameon=False)
+
+
+# --------------------------------------------------------------------------- Fig. 4
 def plot_fig4(curves, path: Path, reference=None) -> bool:
-    single = lambda r: r["role"] == "single" and r["experiment"] == "single"  # noqa: E731
-    tasks = sorted({r["task"] for r in curves if single(r)}, key=lambda t: TASKS.index(t) if t in TASKS else 99)
+    singles = set(_experiments(SINGLE_KIND, default=True))
+    single = lambda r: r["role"] == SINGLE_KIND and r["experiment"] in singles  # noqa: E731
+    tasks = sorted({r["task"] for r in curves if single(r)}, key=_task_order)
     if not tasks:
         return False
     plt = _plt()
-    fig, axes = plt.subplots(2, len(tasks), figsize=(4.8 * len(tasks), 7.5), squeeze=False)
+    fig, axes = plt.subplots(1, len(tasks), figsize=(2.45 * len(tasks) + 0.3, 2.5), squeeze=False, sharey=True)
     for j, task in enumerate(tasks):
         where = lambda r, t=task: single(r) and r["task"] == t  # noqa: E731
         g = curves_by(curves, where, lambda r: r["method"])
-        ref = curves_by(reference, where, lambda r: r["method"]) if reference else None
-        styles = {m: (color_of(m), "-") for m in g}
-        draw(axes[0, j], g, "eval_success_rate", f"{task}: evaluation success", "success rate", styles, ref)
-        draw(axes[1, j], g, "eval_return", f"{task}: evaluation return", "return per episode", styles, ref)
-    fig.suptitle("Single-task learning (paper Fig. 4): mean over seeds, 95% t-interval band")
+        groups = {method_label(m): (g[m], color_of(m), *style_of(m)) for m in METHOD_SPECS if m in g}
+        ref = {method_label(m): v for m, v in curves_by(reference, where, lambda r: r["method"]).items()} \
+            if reference else None
+        ns = sorted({len(v[0]) for v in groups.values()})
+        draw(axes[0, j], groups, "eval_success_rate", f"{task} (n = {'/'.join(map(str, ns))} seeds)",
+             "evaluation success rate" if j == 0 else "", rate=True, reference=ref, with_n=False)
+    _legend_below(fig, axes, ncol=4)
+    fig.suptitle("Single-task learning (paper Fig. 4): mean over seeds, 95% bootstrap band", y=1.02)
     fig.tight_layout()
     save_figure(fig, path)
     plt.close(fig)
     return True
 
 
+# --------------------------------------------------------------------------- Fig. 5
 def plot_fig5(curves, path: Path, reference=None) -> bool:
-    adapt = [r for r in curves if r["role"] == "adapt" and r["experiment"] in ("transfer", "scratch", "ratios")]
+    chain = [n for n in _experiments(CHAIN_KIND, default=True) if len(EXPERIMENTS[n].arms) == 1]
+    scratch = _experiments(SCRATCH_KIND, default=True)
+    studies = [n for n in _experiments(CHAIN_KIND, default=True) if len(EXPERIMENTS[n].arms) > 1]
+    shown = set(chain) | set(scratch) | set(studies)
+    adapt = [r for r in curves if r["role"] == "adapt" and r["experiment"] in shown]
     if not adapt:
         return False
-    target = sorted({r["task"] for r in adapt}, key=lambda t: TASKS.index(t) if t in TASKS else 99)[-1]
+    target = sorted({r["task"] for r in adapt}, key=_task_order)[-1]
     plt = _plt()
-    main = lambda r: (r["task"] == target and r["role"] == "adapt"  # noqa: E731
-                      and (r["experiment"] in ("transfer", "scratch")))
-    lab = lambda r: r["method"] + (" from scratch" if r["experiment"] == "scratch" else "")  # noqa: E731
-    g = curves_by(curves, main, lab)
-    ref = curves_by(reference, main, lab) if reference else None
-    styles = {k: (color_of(k.split()[0]), "--" if "scratch" in k else "-") for k in g}
-    ratios = curves_by(curves, lambda r: r["task"] == target and r["role"] == "adapt" and r["experiment"] == "ratios",
-                       lambda r: f"{r['method']} {r['arm']}")
-    rstyles = {k: (color_of(k.split()[0], k.split()[1]), "-") for k in ratios}
-    fig, axes = plt.subplots(2, 2, figsize=(11, 8.5))
-    draw(axes[0, 0], g, "eval_success_rate", f"{target} adaptation: evaluation success", "success rate", styles, ref)
+    main = lambda r: r["task"] == target and r["role"] == "adapt" and r["experiment"] in set(chain) | set(scratch)  # noqa: E731
+    g = curves_by(curves, main, lambda r: (r["experiment"], r["arm"], r["method"]))
+    order = sorted(g, key=lambda k: (k[0] in scratch, list(METHOD_SPECS).index(k[2]) if k[2] in METHOD_SPECS else 9))
+    label = lambda k: method_label(k[2]) + (", from scratch" if k[0] in scratch else ", transfer")  # noqa: E731
+    groups = {label(k): (g[k], color_of(k[2], k[1], k[0]), *style_of(k[2])) for k in order}
+    ref = {label(k): v for k, v in curves_by(reference, main, lambda r: (r["experiment"], r["arm"], r["method"])).items()} \
+        if reference else None
+    ratios = curves_by(curves, lambda r: r["task"] == target and r["role"] == "adapt" and r["experiment"] in studies,
+                       lambda r: (r["experiment"], r["arm"], r["method"]))
+    rgroups = {f"{method_label(k[2])}, P(R)/P(E) = {arm_label(k[0], k[1]) if not is_paper_treatment(k[0], k[1]) else k[1]}":
+               (ratios[k], color_of(k[2], k[1], k[0]), *style_of(k[2])) for k in ratios}
+    fig, axes = plt.subplots(1, 3, figsize=(10.5, 3.0))
+    draw(axes[0], groups, "eval_success_rate", f"{target}: evaluation success", "success rate", rate=True,
+         reference=ref)
     # the prior without fine-tuning: its step-0 evaluation on the target (zero-shot), as a control line
-    for label, by_seed in g.items():
-        s0 = [rows[0]["eval_success_rate"] for rows in by_seed.values() if 0 in rows and "scratch" not in label]
+    for k in order:
+        if k[0] in scratch:
+            continue
+        s0 = [rows[0]["eval_success_rate"] for rows in g[k].values() if 0 in rows]
         if s0:
-            axes[0, 0].axhline(float(np.mean([float(v) for v in s0])), color=styles[label][0], linestyle=":",
-                               alpha=0.8, label=f"{label} prior, zero-shot (step 0)")
-    axes[0, 0].legend(fontsize=7)
-    draw(axes[0, 1], g, "eval_return", f"{target} adaptation: evaluation return", "return per episode", styles, ref)
-    draw(axes[1, 0], g, "train_successes", f"{target} adaptation: successful attempts (Table 5)",
-         "successful training episodes (cumulative)", styles, ref)
-    draw(axes[1, 1], ratios, "train_successes", f"{target} adaptation: sampling ratio P(R)/P(E) (Table 4)",
-         "successful training episodes (cumulative)", rstyles)
-    fig.suptitle(f"Multi-task transfer (paper Fig. 5): chain (solid) vs {target} from scratch (dashed); "
-                 "dotted: the prior's step-0 score; mean over seeds, 95% t-interval band")
+            axes[0].axhline(float(np.mean([float(v) for v in s0])), color=groups[label(k)][1], linestyle=":", lw=1,
+                            alpha=0.9, label=f"{method_label(k[2])} prior, zero-shot (step 0)")
+    draw(axes[1], groups, "train_successes", f"{target}: successful training episodes",
+         "cumulative (paper Table 5)", reference=ref)
+    draw(axes[2], rgroups, "train_successes", f"{target}: sampling ratio (Table 4)", "cumulative")
+    h, lab = axes[2].get_legend_handles_labels()
+    axes[2].legend(h, lab, loc="upper left", frameon=False, fontsize=7.5)
+    fig.legend(*axes[0].get_legend_handles_labels(), loc="upper center", bbox_to_anchor=(0.36, 0.0), ncol=3,
+               frameon=False)
+    fig.suptitle(f"Multi-task transfer (paper Fig. 5): adaptation on {target} after "
+                 f"{' > '.join(t.split('-')[0] for t in TASKS[:-1])}, vs from scratch\n"
+                 "dotted: each prior's step-0 (zero-shot) score; mean over seeds, 95% bootstrap band", y=1.06)
     fig.tight_layout()
     save_figure(fig, path)
     plt.close(fig)
     return True
+
+
+# --------------------------------------------------------------------------- Fig. 6
+def _claim_cells(experiment: str) -> List[Tuple[str, str, str]]:
+    """(experiment, arm, method) of every claim side compared with a side in ``experiment``."""
+    from .claims import CLAIMS
+    out = []
+    for c in CLAIMS:
+        sides = (c.a, c.b)
+        if any(s.experiment == experiment for s in sides):
+            out += [(s.experiment, s.arm, s.method) for s in sides if s.experiment != experiment]
+    return list(dict.fromkeys(out))
+
+
+def _paper_cells(experiment: str, methods: Sequence[str]) -> List[Tuple[str, str, str]]:
+    """The paper treatment's cells (the default single-arm chain experiment) standing in for ``experiment``'s own
+    paper-treatment arm, whose runs are shared with it and may be filed under that experiment only."""
+    e = EXPERIMENTS[experiment]
+    if not any(is_paper_treatment(experiment, a.name) for a in e.arms):
+        return []
+    base = [n for n in _experiments(CHAIN_KIND, default=True) if len(EXPERIMENTS[n].arms) == 1]
+    return [(b, PAPER_ARM, m) for b in base for m in methods]
+
+
+def _ablation_cells(e: str, runs: Dict[Tuple[str, str, str], set]) -> List[Tuple[str, str, str]]:
+    own = [k for k in runs if k[0] == e]
+    extra = _paper_cells(e, sorted({k[2] for k in own})) + _claim_cells(e)
+    cells, seen = [], []
+    for k in own + [k for k in extra if k in runs]:
+        if frozenset(runs[k]) not in seen:  # one set of runs is drawn once
+            seen.append(frozenset(runs[k]))
+            cells.append(k)
+    names = list(METHOD_SPECS)
+    return sorted(cells, key=lambda k: (names.index(k[2]) if k[2] in names else 9, not is_paper_treatment(k[0], k[1]),
+                                        k[0] != e, k[1]))
 
 
 def plot_ablations(curves, path: Path, experiments: Sequence[str]) -> bool:
-    present = [e for e in experiments if any(r["experiment"] == e and r["role"] == "adapt" for r in curves)]
+    """One row per ablation experiment: its arms, the paper treatment where the experiment has one, and each
+    claim's comparison arm (evaluation success; cumulative successful training episodes)."""
+    adapt = [r for r in curves if r["role"] == "adapt"]
+    present = [e for e in experiments if any(r["experiment"] == e for r in adapt)]
     if not present:
         return False
+    runs: Dict[Tuple[str, str, str], set] = defaultdict(set)
+    for r in adapt:
+        runs[(r["experiment"], r["arm"], r["method"])].add(r["run"])
     plt = _plt()
-    fig, axes = plt.subplots(2, len(present), figsize=(4.8 * len(present), 8), squeeze=False)
-    for j, e in enumerate(present):
-        where = lambda r, e=e: r["experiment"] == e and r["role"] == "adapt"  # noqa: E731
-        g = curves_by(curves, where, lambda r: f"{r['method']} {r['arm']}")
-        styles = {k: (color_of(*k.split(" ", 1)), "-") for k in g}
-        draw(axes[0, j], g, "eval_success_rate", f"{e}: evaluation success", "success rate", styles)
-        draw(axes[1, j], g, "train_successes", f"{e}: successful training episodes", "cumulative", styles)
-    fig.suptitle("Ablations of the adaptation stage (same prior per method): mean over seeds, 95% t-interval band")
-    fig.tight_layout()
+    fig = plt.figure(figsize=(9.5, 2.6 * len(present)), layout="constrained")
+    subs = np.atleast_1d(fig.subfigures(len(present), 1))
+    for i, e in enumerate(present):
+        cells = _ablation_cells(e, runs)
+        want = set(cells)
+        g = curves_by(adapt, lambda r: (r["experiment"], r["arm"], r["method"]) in want,
+                      lambda r: (r["experiment"], r["arm"], r["method"]))
+        groups = {}
+        for k in cells:
+            lab = f"{method_label(k[2])}, {arm_label(k[0], k[1])}"
+            if k[0] != e and not is_paper_treatment(k[0], k[1]) and EXPERIMENTS.get(k[0], None) is not None \
+                    and EXPERIMENTS[k[0]].kind != SCRATCH_KIND:
+                lab += f" [{experiment_label(k[0])}]"
+            groups[lab] = (g[k], color_of(k[2], k[1], k[0]), *style_of(k[2]))
+        axes = subs[i].subplots(1, 2)
+        draw(axes[0], groups, "eval_success_rate", "evaluation success", "success rate", rate=True)
+        draw(axes[1], groups, "train_successes", "successful training episodes", "cumulative")
+        axes[1].legend(loc="upper left", bbox_to_anchor=(1.03, 1.0), frameon=False, fontsize=7.5)
+        subs[i].suptitle(f"{experiment_label(e)}", fontsize=9.5, fontweight="bold")
+    fig.suptitle("Ablations of the adaptation stage: each experiment's arms with the paper's settings and each claim's "
+                 "comparison arm\nmean over seeds, 95% bootstrap band; colour: arm, line style: method", fontsize=10)
     save_figure(fig, path)
     plt.close(fig)
     return True
 
 
-def plot_aggregate(scores_rows, path: Path, metric: str = "mean_eval_success_rate") -> bool:
-    """Across tasks, rliable style, from single-task scores: IQM and mean with stratified-bootstrap 95% CIs,
-    the run-score performance profile, and the probability of improvement of each pair of methods."""
+# --------------------------------------------------------------------------- Fig. 7 (rliable style)
+def _strat_boot(mats: Dict[str, np.ndarray], fn, resamples: int = RESAMPLES, seed: int = 0) -> Dict[str, np.ndarray]:
+    """fn(resampled matrix) for each method: rows (seeds) resampled within each column (task), seeded."""
+    rng = np.random.default_rng(seed)
+    out = {}
+    for m, x in mats.items():
+        idx = rng.integers(0, x.shape[0], (resamples, x.shape[0], x.shape[1]))
+        out[m] = np.array([fn(np.take_along_axis(x, idx[b], axis=0)) for b in range(resamples)])
+    return out
+
+
+def _aggregate_row(axes, mats: Dict[str, np.ndarray], tasks: List[str], metric_name: str, rate: bool) -> None:
     from . import stats
-    rows = [r for r in scores_rows if r["role"] == "single" and r["experiment"] == "single" and r["metric"] == metric]
-    tasks = sorted({r["task"] for r in rows}, key=lambda t: TASKS.index(t) if t in TASKS else 99)
-    methods = [m for m in METHOD_SPECS if any(r["method"] == m for r in rows)]
-    vals: Dict[str, Dict[str, Dict[int, float]]] = defaultdict(lambda: defaultdict(dict))
-    for r in rows:
-        vals[r["method"]][r["task"]][int(r["seed"])] = float(r["value"])
-    mats = {}
-    for m in methods:
-        seeds = sorted(set.intersection(*[set(vals[m][t]) for t in tasks])) if all(vals[m][t] for t in tasks) else []
-        if len(seeds) >= 2:
-            mats[m] = np.array([[vals[m][t][s] for t in tasks] for s in seeds])
-    if len(mats) < 2:
-        return False
-    plt = _plt()
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
-    names = list(mats)
-    for k, (label, fn) in enumerate((("IQM", lambda x: stats.iqm(x, axis=1)), ("mean", lambda x: x.mean(axis=1)))):
+    names = list(mats)[::-1]  # the last registered method (the paper's) first: P(it > each other)
+    q = (1 - LEVEL) / 2
+    # (1) IQM and mean with stratified-bootstrap CIs
+    for k, (label, fn) in enumerate((("IQM", lambda x: float(stats.iqm(x))), ("mean", lambda x: float(x.mean())))):
+        boots = _strat_boot(mats, fn, seed=k)
         for j, m in enumerate(names):
-            pt, lo, hi = stats.aggregate_ci(mats[m], fn)
-            y = j + 0.18 * (1 - 2 * k)
+            pt = fn(mats[m])
+            lo, hi = np.quantile(boots[m], [q, 1 - q])
+            y = j + 0.15 * (1 - 2 * k)
             axes[0].errorbar(pt, y, xerr=[[pt - lo], [hi - pt]], fmt="o" if k == 0 else "s", color=color_of(m),
-                             capsize=3, label=label if j == 0 else None, alpha=1.0 if k == 0 else 0.5)
-    axes[0].set_yticks(range(len(names)), [METHOD_SPECS[m].display for m in names])
-    if metric.endswith("rate"):
+                             capsize=3, ms=5, mfc=color_of(m) if k == 0 else "white")
+    axes[0].set_yticks(range(len(names)), [method_label(m) for m in names])
+    axes[0].set_ylim(-0.6, len(names) - 0.4)
+    axes[0].set_xlabel(f"{metric_name}\n(filled: IQM, open: mean; 95% CI)")
+    if rate:
         axes[0].set_xlim(-0.02, 1.02)
-    axes[0].set_xlabel(f"{metric} (o IQM, s mean; 95% stratified bootstrap CI)")
-    axes[0].set_title(f"Aggregate over {len(tasks)} tasks", fontsize=10)
-    taus = np.linspace(0, 1, 41)
+    # (2) performance profile with a bootstrap band
+    hi_all = max(float(x.max()) for x in mats.values())
+    taus = np.linspace(0, 1 if rate else hi_all * 1.02, 61)
+    boots = _strat_boot(mats, lambda x: stats.performance_profile(x, taus), seed=2)
     for m in names:
-        axes[1].plot(taus, stats.performance_profile(mats[m], taus), color=color_of(m), label=METHOD_SPECS[m].display)
-    axes[1].set_xlabel(f"threshold tau on {metric}")
-    axes[1].set_ylabel("fraction of runs with score > tau")
-    axes[1].set_title("Performance profile (all tasks and seeds)", fontsize=10)
-    axes[1].legend(fontsize=7)
+        ls, _ = style_of(m)
+        axes[1].plot(taus, stats.performance_profile(mats[m], taus), color=color_of(m), linestyle=ls,
+                     label=method_label(m))
+        lo, hi = np.quantile(boots[m], [q, 1 - q], axis=0)
+        axes[1].fill_between(taus, lo, hi, color=color_of(m), alpha=0.15, lw=0)
+    axes[1].set_xlabel(f"threshold tau on {metric_name}")
+    axes[1].set_ylabel("fraction of runs > tau")
+    axes[1].legend(frameon=False)
+    # (3) probability of improvement, mean over tasks, with a stratified-bootstrap CI (both sides resampled)
     pairs = [(a, b) for i, a in enumerate(names) for b in names[i + 1:]]
+    rng = np.random.default_rng(3)
     for j, (a, b) in enumerate(pairs):
-        p = np.mean([stats.prob_improvement(mats[a][:, t], mats[b][:, t]) for t in range(len(tasks))])
-        axes[2].barh(j, p, color=color_of(a))
-    axes[2].axvline(0.5, color="black", linestyle=":")
-    axes[2].set_yticks(range(len(pairs)), [f"P({a} > {b})" for a, b in pairs], fontsize=8)
+        xa, xb = mats[a], mats[b]
+        p = float(np.mean([stats.prob_improvement(xa[:, t], xb[:, t]) for t in range(len(tasks))]))
+        bs = []
+        for _ in range(RESAMPLES // 4):
+            ia = rng.integers(0, xa.shape[0], xa.shape)
+            ib = rng.integers(0, xb.shape[0], xb.shape)
+            ra, rb = np.take_along_axis(xa, ia, 0), np.take_along_axis(xb, ib, 0)
+            bs.append(np.mean([stats.prob_improvement(ra[:, t], rb[:, t]) for t in range(len(tasks))]))
+        lo, hi = np.quantile(bs, [q, 1 - q])
+        axes[2].errorbar(p, j, xerr=[[p - lo], [hi - p]], fmt="o", color=color_of(a), capsize=4, ms=6)
+    axes[2].axvline(0.5, color="black", linestyle=":", lw=1)
+    axes[2].set_yticks(range(len(pairs)), [f"P({method_label(a)}\n> {method_label(b)})" for a, b in pairs])
+    axes[2].set_ylim(-0.6, len(pairs) - 0.4)
     axes[2].set_xlim(0, 1)
-    axes[2].set_title("Probability of improvement (mean over tasks)", fontsize=10)
+    axes[2].set_xlabel("probability of improvement (95% CI)")
     for ax in axes:
         ax.grid(alpha=0.3)
-    fig.suptitle(f"Single-task learning across tasks, in rliable's style (n = {min(len(v) for v in mats.values())} "
-                 "seeds per task)")
+
+
+def _matrix(rows, keyfn, tasks) -> Tuple[Dict[str, np.ndarray], Dict[str, Dict[str, int]]]:
+    """method -> (seeds all tasks share) x tasks; and method -> task -> seeds available."""
+    vals: Dict[str, Dict[str, Dict[int, float]]] = defaultdict(lambda: defaultdict(dict))
+    for r in rows:
+        vals[keyfn(r)][r["task"]][int(r["seed"])] = float(r["value"])
+    mats, avail = {}, {}
+    for m in METHOD_SPECS:
+        if m not in vals or not all(vals[m][t] for t in tasks):
+            continue
+        avail[m] = {t: len(vals[m][t]) for t in tasks}
+        seeds = sorted(set.intersection(*[set(vals[m][t]) for t in tasks]))
+        if len(seeds) >= 2:
+            mats[m] = np.array([[vals[m][t][s] for t in tasks] for s in seeds])
+    return mats, avail
+
+
+def plot_aggregate(scores_rows, path: Path, metric: str = "mean_eval_success_rate") -> bool:
+    """rliable style: IQM and mean with stratified-bootstrap 95% CIs, the performance profile with a bootstrap
+    band, and the probability of improvement with a CI; top row: single-task runs across tasks (``metric``),
+    bottom row: the headline adaptation claim's metric and cells (the first claim in ``claims.CLAIMS``)."""
+    from .claims import CLAIMS
+    singles = set(_experiments(SINGLE_KIND, default=True))
+    rows = [r for r in scores_rows if r["role"] == SINGLE_KIND and r["experiment"] in singles and r["metric"] == metric]
+    tasks = sorted({r["task"] for r in rows}, key=_task_order)
+    mats, avail = _matrix(rows, lambda r: r["method"], tasks)
+    head = CLAIMS[0]
+    sides = {(s.experiment, s.arm, s.role, s.task) for s in (head.a, head.b)}
+    hrows = [r for r in scores_rows if r["metric"] == head.metric
+             and (r["experiment"], r["arm"], r["role"], r["task"]) in sides
+             and r["method"] in (head.a.method, head.b.method)]
+    hmats, _ = _matrix(hrows, lambda r: r["method"], [head.a.task])
+    panels = [p for p in ((mats, tasks, metric, True), (hmats, [head.a.task], head.metric, False)) if len(p[0]) >= 2]
+    if not panels:
+        return False
+    plt = _plt()
+    fig, axes = plt.subplots(len(panels), 3, figsize=(10.5, 2.9 * len(panels)), squeeze=False)
+    for i, (mm, tt, name, single_row) in enumerate(panels):
+        rate = name.endswith("rate")
+        _aggregate_row(axes[i], mm, tt, name.replace("_", " "), rate)
+        n = min(x.shape[0] for x in mm.values())
+        if single_row:
+            have = ", ".join(f"{t.split('-')[0]} {max(avail[m][t] for m in mm)}" for t in tt)
+            axes[i, 0].set_title(f"Single-task, {len(tt)} tasks: the {n} seeds every task has\n(seeds run: {have})",
+                                 fontsize=8.5)
+        else:
+            ns = sorted({x.shape[0] for x in mm.values()})
+            axes[i, 0].set_title(f"Headline adaptation claim ({head.key}): {tt[0]},\n"
+                                 f"{' and '.join(map(str, ns))} seeds per method", fontsize=8.5)
+        axes[i, 1].set_title("Performance profile, 95% bootstrap band", fontsize=8.5)
+        axes[i, 2].set_title("Probability of improvement" + (" (mean over tasks)" if len(tt) > 1 else ""),
+                             fontsize=8.5)
+    fig.suptitle("Aggregates in rliable's style (stratified bootstrap over seeds)", y=1.01)
     fig.tight_layout()
     save_figure(fig, path)
     plt.close(fig)

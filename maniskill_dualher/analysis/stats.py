@@ -509,3 +509,13 @@ def aggregate_ci(scores: np.ndarray, fn, resamples: int = 2_000, seed: int = 0, 
 def performance_profile(scores: np.ndarray, taus: np.ndarray) -> np.ndarray:
     """Fraction of runs (all tasks and seeds) scoring above each threshold tau (rliable's run-score profile)."""
     return (scores.reshape(-1)[None, :] > taus[:, None]).mean(axis=1)
+
+
+def wilson(successes: int, n: int, level: float = 0.95) -> Tuple[float, float]:
+    """Wilson score interval of a binomial proportion successes/n: always inside [0, 1] (evaluate, plots)."""
+    k, n = int(successes), int(n)
+    if n < 1 or not 0 <= k <= n:
+        raise ValueError(f"wilson needs 0 <= successes <= n and n >= 1, got {k}/{n}")
+    from scipy.stats import binomtest
+    ci = binomtest(k, n).proportion_ci(confidence_level=level, method="wilson")
+    return float(ci.low), float(ci.high)
