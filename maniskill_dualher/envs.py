@@ -10,6 +10,7 @@ dict goal envs are flattened to it), and ``split`` cuts it apart. Actions go in 
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass
 from typing import Optional, Tuple
 
@@ -20,6 +21,17 @@ from .config import ConfigError, RunConfig
 from .replay.base import RewardFn
 
 EVAL_SEED_BASE = 1_000_000_000  # evaluation episodes use seeds EVAL_SEED_BASE + i in every run
+# "0" turns the lean env step off (tasks/lean.py: one CPU env stepped without ManiSkill's per-step Python,
+# bit-identical, tests/test_lean_step.py). An environment variable, not a RunConfig field: it changes no
+# result, and a field would change every run folder's name (the hash of the config).
+LEAN_STEP_ENV = "MANISKILL_DUALHER_LEAN_STEP"
+
+
+def lean_step_wanted() -> bool:
+    v = os.environ.get(LEAN_STEP_ENV, "1")
+    if v not in ("0", "1"):
+        raise ConfigError(f"{LEAN_STEP_ENV}={v!r} is not 0 or 1")
+    return v == "1"
 
 
 @dataclass
@@ -111,6 +123,16 @@ class BatchEnv:
             max_steps = int(cfg.max_episode_steps or (self.env.spec and self.env.spec.max_episode_steps) or 1000)
         self.spec = EnvSpec(env_id, obs_dim, goal_dim, int(self.low.size), self.num_envs, max_steps,
                             reward_fn, self.is_maniskill)
+        # the task env itself when it takes the lean step (tasks/lean.py), else None (ManiSkill's step)
+        self.lean = None
+        self.lean_off_reason = "off" if not lean_step_wanted() else None
+        if self.is_maniskill and self.lean_off_reason is None:
+            from maniskill_dualher.tasks.common import episode_length
+            from maniskill_dualher.tasks.lean import unsupported_reason
+            self.lean_off_reason = unsupported_reason(self.unwrapped)
+            if self.lean_off_reason is None:
+                self.lean = self.unwrapped
+                self._time_limit = episode_length(self.env)  # ManiSkill's TimeLimitWrapper's, which lean skips
 
     # ------------------------------------------------------------------ making
     @staticmethod
@@ -181,6 +203,10 @@ class BatchEnv:
     def step(self, action: np.ndarray):
         """action in [-1, 1]^A -> (obs, reward, terminated, truncated, success or None), all numpy (N, ...)."""
         a = self.low + (np.clip(action, -1.0, 1.0) + 1.0) * 0.5 * (self.high - self.low)
+        if self.lean is not None:
+            obs, rew, term, elapsed = self.lean.lean_step(np.asarray(a, dtype=np.float32))
+            trunc = np.array([self._time_limit is not None and elapsed >= self._time_limit])
+            return obs, rew, term, trunc, term.copy()
         if self.is_maniskill:
             import torch
             a = torch.as_tensor(a, dtype=torch.float32, device=self.unwrapped.device)

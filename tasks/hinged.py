@@ -22,8 +22,14 @@ import torch
 
 from mani_skill.utils.structs import Pose
 
-from .common import PandaGoalEnv, transform_points
+from .common import FLAT_OBS_DIM, GOAL_DIM, OBS_DIM, OBS_SLICES, PandaGoalEnv, transform_points
+from .lean import transform_point32
 
+# observation slots the lean step fills (tasks/lean.py)
+_OBJ = OBS_SLICES["object_pose"]
+_OBJ_P, _OBJ_Q = slice(_OBJ.start, _OBJ.start + 3), slice(_OBJ.start + 3, _OBJ.stop)
+_JOINT_QPOS, _JOINT_QVEL, _DISTRACTORS = OBS_SLICES["joint_qpos"], OBS_SLICES["joint_qvel"], OBS_SLICES["distractor_pos"]
+_ACHIEVED, _DESIRED = slice(OBS_DIM, OBS_DIM + GOAL_DIM), slice(OBS_DIM + GOAL_DIM, FLAT_OBS_DIM)
 Part = Tuple[Sequence[float], Sequence[float]]  # (centre, half size), metres, in the link's frame
 
 
@@ -103,6 +109,7 @@ class HingedPanelEnv(PandaGoalEnv):
             return torch.tensor(list(xyz), dtype=torch.float32, device=self.device)
 
         self._free_edge_local = point(g.free_edge_panel)
+        self._free_edge_local_list = self._free_edge_local.tolist()  # for the lean step
         self._push_local = point(g.push_panel)
         self._closed_free_edge_body = point(g.closed_free_edge_body)
         # The body only moves in _initialize_episode / set_state_dict: the desired goal (N, 3) is cached
@@ -158,6 +165,16 @@ class HingedPanelEnv(PandaGoalEnv):
 
     def _evaluate_extra(self) -> dict:
         return {self.ANGLE_INFO_KEY: self.articulation.qpos[:, 0].clone()}
+
+    def _lean_task_parts(self, obs, fused):
+        pose = self.panel._objs[0].entity_pose
+        p, q = pose.p, pose.q
+        obs[_OBJ_P], obs[_OBJ_Q] = p, q
+        art = self.articulation._objs[0]
+        obs[_JOINT_QPOS], obs[_JOINT_QVEL] = art.qpos[:1], art.qvel[:1]
+        obs[_DISTRACTORS] = 0.0
+        obs[_ACHIEVED] = transform_point32(p.tolist() + q.tolist(), self._free_edge_local_list, fused)
+        obs[_DESIRED] = self._desired_cache.numpy()[0]
 
     # ------------------------------------------------------------------ observations
     def _object_pose(self) -> torch.Tensor:

@@ -6,7 +6,8 @@ import torch
 from mani_skill.utils.registration import register_env
 from mani_skill.utils.structs import Pose
 
-from .common import DEFAULT_MAX_EPISODE_STEPS, PandaGoalEnv, build_primitive
+from .common import (DEFAULT_MAX_EPISODE_STEPS, FLAT_OBS_DIM, GOAL_DIM, OBS_DIM, OBS_SLICES, PandaGoalEnv,
+                     build_primitive)
 
 
 @register_env("ReachTarget-v1", max_episode_steps=DEFAULT_MAX_EPISODE_STEPS)
@@ -102,3 +103,17 @@ class ReachTargetEnv(PandaGoalEnv):
 
     def _distractor_positions(self):
         return self._ball_pos[:, 1:].reshape(self.num_envs, 6)
+
+    def _lean_task_parts(self, obs, fused):
+        balls = self._ball_pos.numpy()[0]  # (3 balls, 3): target, two distractors
+        obs[_NO_OBJECT] = 0.0  # object_pose, joint_qpos, joint_qvel: the target is the desired goal
+        obs[_DISTRACTORS] = balls[1:].reshape(6)
+        obs[_ACHIEVED] = obs[_TCP_P]
+        obs[_DESIRED] = balls[0]
+
+
+# observation slots the lean step fills (tasks/lean.py)
+_NO_OBJECT = slice(OBS_SLICES["object_pose"].start, OBS_SLICES["joint_qvel"].stop)
+_DISTRACTORS = OBS_SLICES["distractor_pos"]
+_TCP_P = slice(OBS_SLICES["tcp_pose"].start, OBS_SLICES["tcp_pose"].start + 3)
+_ACHIEVED, _DESIRED = slice(OBS_DIM, OBS_DIM + GOAL_DIM), slice(OBS_DIM + GOAL_DIM, FLAT_OBS_DIM)

@@ -195,3 +195,54 @@ def test_partial_rebuild_equals_full_tree():
     u.tree[u.P:u.P + 613] = t.tree[t.P:t.P + 613]
     u.rebuild(613)
     assert np.array_equal(t.tree, u.tree)
+
+
+class _FullDepthSumTree:
+    """The sum tree before its subtree shortcut (every level of every walk): the reference for its bits."""
+
+    def __init__(self, capacity):
+        self.depth = max(1, int(np.ceil(np.log2(capacity))))
+        self.P = 1 << self.depth
+        self.tree = np.zeros(2 * self.P)
+
+    def update(self, idx, values):
+        node = np.asarray(idx, dtype=np.int64) + self.P
+        self.tree[node] = values
+        node = node >> 1
+        for _ in range(self.depth):
+            left = node << 1
+            self.tree[node] = self.tree[left] + self.tree[left + 1]
+            node >>= 1
+
+    def find(self, prefix):
+        s = np.array(prefix, dtype=np.float64)
+        node = np.ones(s.shape, dtype=np.int64)
+        for _ in range(self.depth):
+            node <<= 1
+            left = self.tree[node]
+            go_right = s >= left
+            s -= left * go_right
+            node += go_right
+        return node - self.P
+
+
+@pytest.mark.parametrize("cap", [1, 2, 3, 17, 64, 1000, 5000])
+def test_sumtree_subtree_walks_have_full_depth_bits(cap):
+    """update and find walk only the subtree of written leaves: the same tree and the same leaves found as
+    walking every level, while the buffer fills and after it wraps, for queries inside and beyond the total."""
+    rng = np.random.default_rng(cap)
+    t, ref = SumTree(cap), _FullDepthSumTree(cap)
+    high = 0
+    for step in range(60):
+        high = min(cap, high + int(rng.integers(1, max(2, cap // 20 + 2))))  # fill the way a ring buffer does
+        idx = rng.integers(0, high, int(rng.integers(1, 300)))  # duplicates included
+        vals = rng.random(len(idx)) * 3
+        vals[rng.random(len(idx)) < 0.1] = 0.0
+        t.update(idx, vals)
+        ref.update(idx, vals)
+        assert t.tree.tobytes() == ref.tree.tobytes()
+        total = t.total
+        q = np.concatenate([rng.random(256) * total, [0.0, total, np.nextafter(total, np.inf), 2 * total + 1]])
+        assert np.array_equal(t.find(q), ref.find(q))
+        if step == 0 and cap > 2:  # a subtree shorter than the tree: a query at the total skips it, to leaf P - 1
+            assert t._sub() < t.depth and t.find(np.array([total]))[0] == t.P - 1

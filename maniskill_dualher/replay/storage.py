@@ -71,7 +71,7 @@ class RingStorage:
     # ----------------------------------------------------------------- reading
     def get(self, indices: np.ndarray) -> Dict[str, np.ndarray]:
         """Gather rows: fresh arrays (never views into storage, never reused buffers)."""
-        return {k: np.take(arr, indices, axis=0) for k, arr in self._data.items()}
+        return {k: arr.take(indices, axis=0) for k, arr in self._data.items()}  # the method: no wrapper
 
     # ----------------------------------------------------------------- checkpoint
     def state_dict(self) -> dict:

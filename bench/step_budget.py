@@ -1,0 +1,344 @@
+"""Where the wall time of a training env step goes: a packed quick-preset run, every millisecond attributed.
+
+Runs ``pack.run_pack`` in this process (S members, seeds 0..S-1, the quick preset's settings, a short budget)
+with timers wrapped around the loop's pieces from outside (train.py and pack.py are not edited). Each timer
+charges the time since the last timer event to the innermost open piece (exclusive time), so the parts add up
+to the whole. Parts, per training env step (summed over members):
+
+  physics           PhysX's substeps (``scene.px.step``) of training steps
+  env python        the rest of ``BatchEnv.step``: action scaling, drive targets, observation, reward, info
+  env reset         ``BatchEnv.reset``/``reset_envs`` of training episodes
+  acting            ``Trainer._explore`` (uniform draws, then the actor's forward)
+  episodes+store    the loop's episode bookkeeping and ``Trainer._store`` (HER relabeling, replay insertion)
+  sampling          ``Trainer.sample`` (replay sampling, HER relabel of the batch, tensors)
+  priorities        ``method.update_priorities`` (sum-tree updates)
+  update products   the fused update's matrix products (torch.mm/bmm/addmm/baddbmm/mv inside sac_fused)
+  update overhead   the rest of the update: elementwise ops, Adam, Polyak, stacking, per-op dispatch
+  update logging    the rest of ``Trainer.apply_update`` (counters, TensorBoard every log_every updates) and
+                    ``Trainer.updates_due`` (the update schedule)
+  eval physics      PhysX's substeps inside ``Trainer.evaluate``
+  eval python       the rest of evaluation (its env Python, resets, acting, episode bookkeeping)
+  logging+ckpt      ``between_episodes`` outside evaluation (metrics, policies, checkpoints), ``finish``,
+                    ``close_logs``
+  setup             building the trainers, ``start`` (env, networks, demonstrations, logs), closing the envs
+  rng swaps         the pack swapping each run's torch random stream in and out (``pack._own_rng``)
+  pack loop         what is left inside ``run_pack`` (guards, the schedule, the loop itself): not attributed
+
+"floor" = physics (training + evaluation) + update products. Scheduler idle (a sweep's worker waiting for
+runs) does not exist in one process; the bench says so instead of inventing it. The lean env step is on
+unless ``MANISKILL_DUALHER_LEAN_STEP=0`` (compare the two for the env's share before/after).
+
+    python bench/step_budget.py [--tasks ReachTarget-v1,...] [--members 2] [--steps 3000] [--out FILE.json]
+
+Both the wall time (perf_counter) and the thread's CPU time (thread_time) are split: on a busy machine the wall
+time includes waiting for a core (inflating every part alike, on average), the CPU time does not; the header
+says how much of the wall time the process had a core.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+import time
+import types
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+PARTS = ("physics", "env python", "env reset", "acting", "episodes+store", "sampling", "priorities",
+         "update products", "update overhead", "update logging", "eval physics", "eval python", "logging+ckpt",
+         "setup", "rng swaps", "pack loop")
+FLOOR = ("physics", "eval physics", "update products")
+PRODUCTS = ("mm", "bmm", "addmm", "baddbmm", "mv")
+
+
+class Clock:
+    """Exclusive time per part: every event charges the time since the previous event to the part on top,
+    in wall time (perf_counter) and in this thread's CPU time (thread_time: what a busy machine disturbs least)."""
+
+    def __init__(self):
+        self.wall = {p: 0.0 for p in PARTS}
+        self.cpu = {p: 0.0 for p in PARTS}
+        self.calls = {p: 0 for p in PARTS}
+        self.intervals = {p: 0 for p in PARTS}  # timer intervals charged to each part (each holds ~one event's cost)
+        self.stack = ["pack loop"]
+        self.events = 0
+        self.reset()
+
+    def reset(self) -> None:
+        self.last, self.last_cpu = time.perf_counter(), time.thread_time()
+
+    def _charge(self) -> None:
+        now, cpu = time.perf_counter(), time.thread_time()
+        top = self.stack[-1]
+        self.wall[top] += now - self.last
+        self.cpu[top] += cpu - self.last_cpu
+        self.intervals[top] += 1
+        self.last, self.last_cpu = now, cpu
+        self.events += 1
+
+    def enter(self, part: str) -> None:
+        self._charge()
+        self.stack.append(part)
+        self.calls[part] += 1
+
+    def leave(self) -> None:
+        self._charge()
+        self.stack.pop()
+
+
+CLOCK: Clock = None  # set in run()
+
+
+def timed(fn, part, in_eval_part=None):
+    """fn wrapped: its exclusive time goes to ``part`` (or ``in_eval_part`` when called during evaluation)."""
+    def wrapper(*a, **kw):
+        p = in_eval_part if (in_eval_part and _in_eval()) else part
+        CLOCK.enter(p)
+        try:
+            return fn(*a, **kw)
+        finally:
+            CLOCK.leave()
+    wrapper.__wrapped__ = fn
+    return wrapper
+
+
+def _in_eval() -> bool:
+    return "eval python" in CLOCK.stack
+
+
+class _Px:
+    """scene.px with a timed step (pybind attributes cannot be patched; the scene's reference can)."""
+
+    def __init__(self, px):
+        object.__setattr__(self, "_px", px)
+
+    def __getattr__(self, k):
+        return getattr(self._px, k)
+
+    def step(self):
+        CLOCK.enter("eval physics" if _in_eval() else "physics")
+        try:
+            self._px.step()
+        finally:
+            CLOCK.leave()
+
+
+def instrument() -> None:
+    import maniskill_dualher.sac_fused as sf
+    from maniskill_dualher import envs, train
+
+    T = train.Trainer
+    T.__init__ = timed(T.__init__, "setup")
+    T.start = timed(T.start, "setup")
+    T._explore = timed(T._explore, "acting")
+    T._store = timed(T._store, "episodes+store")
+    T.collect_step = timed(T.collect_step, "episodes+store")
+    T.sample = timed(T.sample, "sampling")
+    T.apply_update = timed(T.apply_update, "update logging")
+    T.between_episodes = timed(T.between_episodes, "logging+ckpt")
+    T.evaluate = timed(T.evaluate, "eval python")
+    T.finish = timed(T.finish, "logging+ckpt")
+    T.close_logs = timed(T.close_logs, "logging+ckpt")
+    T.updates_due = timed(T.updates_due, "update logging")  # the schedule's bookkeeping
+    B = envs.BatchEnv
+    B.step = timed(B.step, "env python", "eval python")
+    B.reset = timed(B.reset, "env reset", "eval python")
+    B.reset_envs = timed(B.reset_envs, "env reset", "eval python")
+    B.close = timed(B.close, "setup")
+    init = B.__init__
+
+    def batch_env_init(self, cfg):
+        init(self, cfg)
+        if self.is_maniskill:
+            scene = self.unwrapped.scene
+            scene.px = _Px(scene.px)
+    B.__init__ = batch_env_init
+    from maniskill_dualher import sac
+    sac.SAC.update = timed(sac.SAC.update, "update overhead")  # one member: the update outside a pack
+    F = sf.FusedUpdate
+    F.__call__ = timed(F.__call__, "update overhead")
+    F.step_pack = timed(F.step_pack, "update overhead")
+    # the fused update's products: sac_fused looks them up on its module-level ``torch``
+    import torch
+    proxy = types.SimpleNamespace(**{k: getattr(torch, k) for k in dir(torch) if not k.startswith("__")})
+    for name in PRODUCTS:
+        setattr(proxy, name, timed(getattr(torch, name), "update products"))
+    sf.torch = proxy
+    # the pack's random-stream swaps (a module-level context manager its functions look up at call time)
+    import contextlib
+    from maniskill_dualher import pack
+    own_rng = pack._own_rng
+
+    @contextlib.contextmanager
+    def timed_own_rng(m):
+        cm = own_rng(m)
+        CLOCK.enter("rng swaps")
+        try:
+            cm.__enter__()
+        finally:
+            CLOCK.leave()
+        try:
+            yield
+        except BaseException:
+            CLOCK.enter("rng swaps")
+            try:
+                if not cm.__exit__(*sys.exc_info()):
+                    raise
+            finally:
+                CLOCK.leave()
+        else:
+            CLOCK.enter("rng swaps")
+            try:
+                cm.__exit__(None, None, None)
+            finally:
+                CLOCK.leave()
+    pack._own_rng = timed_own_rng
+    # priority updates: every method's go through BufferMethod.update_priorities (replay/method.py)
+    from maniskill_dualher.replay import method as rm
+    rm.BufferMethod.update_priorities = timed(rm.BufferMethod.update_priorities, "priorities")
+
+
+def calibrate(n: int = 20000) -> dict:
+    """Wall and CPU seconds one timer event costs (half an enter/leave pair around an empty call, less the call)."""
+    global CLOCK
+    saved, CLOCK = CLOCK, Clock()
+    f = timed(lambda: None, "pack loop")
+    g = lambda: None  # noqa: E731
+    out = {}
+    for name, clock in (("wall", time.perf_counter), ("cpu", time.thread_time)):
+        t = clock()
+        for _ in range(n):
+            f()
+        pair = (clock() - t) / n
+        t = clock()
+        for _ in range(n):
+            g()
+        out[name] = max(0.0, pair - (clock() - t) / n) / 2
+    CLOCK = saved
+    return out
+
+
+def corrected(res: dict, per_event: dict) -> tuple:
+    """Each part's wall and CPU time less the timer events' cost inside its intervals."""
+    iv = res["intervals"]
+    return tuple({p: max(0.0, res[key][p] - iv[p] * per_event[c]) for p in PARTS}
+                 for key, c in (("parts_wall_s", "wall"), ("parts_cpu_s", "cpu")))
+
+
+def run(task: str, members: int, steps: int, method: str) -> dict:
+    global CLOCK
+    from maniskill_dualher.experiment.presets import preset
+    from maniskill_dualher.pack import Job, run_pack
+
+    jobs = []
+    tmp = tempfile.mkdtemp(prefix="step_budget_")
+    for seed in range(members):
+        cfg = preset("quick").single_config(method, seed, task)
+        cfg.total_steps = steps
+        cfg.validate()
+        jobs.append(Job(cfg, os.path.join(tmp, f"s{seed}")))
+    CLOCK = Clock()
+    cpu0, wall0 = time.process_time(), time.perf_counter()
+    CLOCK.reset()
+    rows = run_pack(jobs)
+    CLOCK._charge()
+    wall = time.perf_counter() - wall0
+    cpu = time.process_time() - cpu0
+    errors = [r["error"] for r in rows if "error" in r]
+    if errors:
+        raise SystemExit(f"a run failed: {errors[0]!r}")
+    env_steps = steps * members
+    return {"task": task, "members": members, "steps_per_member": steps, "method": method, "wall_s": wall,
+            "cpu_s": cpu, "training_env_steps": env_steps, "timer_events": CLOCK.events,
+            "parts_wall_s": dict(CLOCK.wall), "parts_cpu_s": dict(CLOCK.cpu), "calls": dict(CLOCK.calls),
+            "intervals": dict(CLOCK.intervals), "cfg": jobs[0].cfg.to_dict()}
+
+
+def report(res: dict, per_event: dict) -> str:
+    n = res["training_env_steps"]
+    wall, cpu = res["wall_s"], res["cpu_s"]
+    pw, pc = corrected(res, per_event)
+    tw, tc = sum(pw.values()), sum(pc.values())
+    timer_w = res["wall_s"] - tw
+    lines = [f"{res['task']}: {res['members']} members x {res['steps_per_member']} env steps ({res['method']}, "
+             f"quick preset, lean step {'on' if res['lean_step'] else 'off'}), wall {wall:.1f} s, process CPU "
+             f"{cpu:.1f} s ({100 * cpu / wall:.0f}% of wall: the rest waited for a core)",
+             f"per training env step, timer cost removed ({res['timer_events']} events x "
+             f"{1e6 * per_event['wall']:.2f} us wall / {1e6 * per_event['cpu']:.2f} us CPU = {100 * timer_w / wall:.1f}% "
+             f"of the wall time):",
+             f"{'part':<18}{'wall ms/step':>13}{'share':>8}{'CPU ms/step':>13}{'share':>8}"]
+    for p in PARTS:
+        lines.append(f"{p:<18}{1e3 * pw[p] / n:>13.3f}{100 * pw[p] / tw:>7.1f}%{1e3 * pc[p] / n:>13.3f}"
+                     f"{100 * pc[p] / tc:>7.1f}%")
+    lines.append(f"{'total':<18}{1e3 * tw / n:>13.3f}{100.0:>7.1f}%{1e3 * tc / n:>13.3f}{100.0:>7.1f}%")
+    lines.append(f"attributed (all but 'pack loop'): {100 * (1 - pw['pack loop'] / tw):.1f}% of wall, "
+                 f"{100 * (1 - pc['pack loop'] / tc):.1f}% of CPU")
+    for name, parts, tot in (("wall", pw, tw), ("CPU", pc, tc)):
+        floor = sum(parts[p] for p in FLOOR)
+        lines.append(f"floor (physics + eval physics + update products), {name}: {1e3 * floor / n:.3f} ms/step "
+                     f"against {1e3 * tot / n:.3f}: {tot / floor:.2f}x its floor")
+    calls = res["calls"]["env python"]
+    for name, parts in (("wall", pw), ("CPU", pc)):
+        step = parts["physics"] + parts["env python"]
+        lines.append(f"training env step (BatchEnv.step, {calls} calls), {name}: {1e3 * step / calls:.3f} ms, "
+                     f"{step / parts['physics']:.2f}x its physics ({1e3 * parts['physics'] / calls:.3f} ms)")
+    lines.append("scheduler idle: none in one process (a sweep's workers idle only when runs are uneven)")
+    return "\n".join(lines)
+
+
+def main(argv=None) -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--tasks", default="ReachTarget-v1,CloseBox-v1,CloseMicrowave-v1")
+    p.add_argument("--members", type=int, default=2)
+    p.add_argument("--steps", type=int, default=3000, help="env steps per member")
+    p.add_argument("--method", default="dual_buffer")
+    p.add_argument("--out", help="JSON file for the raw numbers (atomic write)")
+    p.add_argument("--load", default="", help="a note on the machine's load while this ran, kept in the output")
+    args = p.parse_args(argv)
+    from maniskill_dualher.config import TASKS
+    tasks = [t for t in args.tasks.split(",") if t]
+    bad = [t for t in tasks if t not in TASKS]
+    if bad or not tasks:
+        print(f"--tasks={args.tasks!r}: unknown task {bad[0] if bad else ''!r} (choose from {','.join(TASKS)})",
+              file=sys.stderr)
+        raise SystemExit(2)
+    if args.members < 1 or args.steps < 1:
+        print(f"--members={args.members} --steps={args.steps} must be >= 1", file=sys.stderr)
+        raise SystemExit(2)
+    import torch
+    torch.set_num_threads(1)
+    from maniskill_dualher import envs
+    instrument()
+    per_event = calibrate()
+    lean = envs.lean_step_wanted()
+    results = []
+    for task in tasks:
+        res = run(task, args.members, args.steps, args.method)
+        res["lean_step"] = lean
+        res["timer_event_s"] = per_event
+        results.append(res)
+        print(report(res, per_event), flush=True)
+    if args.out:
+        from maniskill_dualher.fileio import atomic_write_text
+        from maniskill_dualher import provenance
+        prov = provenance.provenance(ROOT)
+        doc = {"command": " ".join([sys.argv[0]] + (argv if argv is not None else sys.argv[1:])),
+               "lean_step": lean, "load": args.load, "timer_event_s": per_event,
+               "machine": "CPU B" if _is_cpu_b(prov["cpu"]) else provenance.machine_label(prov["cpu"]),
+               "provenance": prov, "results": results,
+               "report": [report(r, per_event) for r in results]}
+        atomic_write_text(args.out, json.dumps(doc, indent=1, default=str) + "\n")
+        print(f"wrote {args.out}")
+
+
+def _is_cpu_b(cpu: dict) -> bool:
+    """CPU B (docs/speed.md): the 2-core AMD EPYC with AVX512-BF16."""
+    return bool(cpu.get("model") and "EPYC" in cpu["model"] and cpu.get("avx512_bf16") and cpu.get("cores") == 2)
+
+
+if __name__ == "__main__":
+    main()
