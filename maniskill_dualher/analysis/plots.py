@@ -21,8 +21,8 @@ from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from ..config import TASKS, RunConfig
-from ..experiment.registry import EXPERIMENTS, KINDS, PAPER_ARM
+from ..config import TASKS
+from ..experiment.registry import EXPERIMENTS, KINDS, PAPER_ARM, is_paper_treatment
 from ..fileio import atomic_write_with
 from ..methods import METHOD_SPECS
 
@@ -68,21 +68,6 @@ def arm_label(experiment: str, arm: str) -> str:
     if e is not None and e.kind == SCRATCH_KIND and arm == PAPER_ARM:
         return "from scratch"
     return arm.replace("_", " ")
-
-
-def is_paper_treatment(experiment: str, arm: str) -> bool:
-    """An arm of a single-task or chain experiment whose settings leave every stage as the paper arm's."""
-    from ..experiment import overrides
-    e, a = EXPERIMENTS.get(experiment), _arm_obj(experiment, arm)
-    if e is None or a is None or e.kind == SCRATCH_KIND:
-        return False
-    if a.adapt_steps_factor != 1.0 or a.prior_method is not None:
-        return False
-    base = RunConfig()
-    for stage in range(3):
-        if overrides.apply(base, overrides.parse_all(a.settings), stage, 3).to_dict() != base.to_dict():
-            return False
-    return True
 
 
 def _arm_colours() -> Dict[Tuple[str, str], str]:

@@ -169,3 +169,21 @@ def default_experiments() -> Tuple[str, ...]:
 
 def ablation_experiments() -> Tuple[str, ...]:
     return tuple(n for n, e in EXPERIMENTS.items() if not e.default)
+
+
+def is_paper_treatment(experiment: str, arm: str) -> bool:
+    """An arm of a single-task or chain experiment whose settings leave every stage as the paper arm's (the
+    plots draw it as the paper's settings, in one colour)."""
+    from . import overrides  # plain config code: no torch, no simulator
+    from ..config import RunConfig
+    e = EXPERIMENTS.get(experiment)
+    a = next((x for x in e.arms if x.name == arm), None) if e is not None else None
+    if e is None or a is None or e.kind == "scratch":
+        return False
+    if a.adapt_steps_factor != 1.0 or a.prior_method is not None:
+        return False
+    base = RunConfig()
+    for stage in range(3):
+        if overrides.apply(base, overrides.parse_all(a.settings), stage, 3).to_dict() != base.to_dict():
+            return False
+    return True
