@@ -1,34 +1,41 @@
-"""Where the wall time of a training env step goes: a packed quick-preset run, every millisecond attributed.
+"""Where the wall time of a training env step goes: quick-preset runs driven side by side, every millisecond attributed.
 
-Runs ``pack.run_pack`` in this process (S members, seeds 0..S-1, the quick preset's settings, a short budget)
-with timers wrapped around the loop's pieces from outside (train.py and pack.py are not edited). Each timer
-charges the time since the last timer event to the innermost open piece (exclusive time), so the parts add up
-to the whole. Parts, per training env step (summed over members):
+Runs ``train.train_runs`` in this process (S members, seeds 0..S-1, the quick preset's settings, a short budget;
+``train.drive`` steps them together and ``pack.Updater`` batches their updates) with timers wrapped around the
+loop's pieces from outside (train.py, pack.py and sac*.py are not edited). Each timer charges the time since the
+last timer event to the innermost open piece (exclusive time), so the parts add up to the whole. Parts, per
+training env step (summed over members):
 
   physics           PhysX's substeps (``scene.px.step``) of training steps
   env python        the rest of ``BatchEnv.step``: action scaling, drive targets, observation, reward, info
   env reset         ``BatchEnv.reset``/``reset_envs`` of training episodes
   acting            ``Trainer._explore`` (uniform draws, then the actor's forward)
-  episodes+store    the loop's episode bookkeeping and ``Trainer._store`` (HER relabeling, replay insertion)
+  episodes+store    the rest of ``Trainer.step`` (episode clocks and arrays, counters) and ``Trainer._store``
+                    (HER relabeling, replay insertion)
   sampling          ``Trainer.sample`` (replay sampling, HER relabel of the batch, tensors)
   priorities        ``method.update_priorities`` (sum-tree updates)
   update products   the fused update's matrix products (torch.mm/bmm/addmm/baddbmm/mv inside sac_fused)
   update overhead   the rest of the update: elementwise ops, Adam, Polyak, stacking, per-op dispatch
-  update logging    the rest of ``Trainer.apply_update`` (counters, TensorBoard every log_every updates) and
-                    ``Trainer.updates_due`` (the update schedule)
+                    (``SAC.update``, ``FusedUpdate``), and ``Updater.round`` grouping the due runs into packs
+  update logging    the rest of ``Trainer.learn`` (counters, diagnostics, TensorBoard every log_every updates)
+                    and ``Trainer._updates_due`` (the update schedule)
   eval physics      PhysX's substeps inside ``Trainer.evaluate``
   eval python       the rest of evaluation (its env Python, resets, acting, episode bookkeeping)
-  logging+ckpt      ``between_episodes`` outside evaluation (metrics, policies, checkpoints), ``finish``,
-                    ``close_logs``
-  setup             building the trainers, ``start`` (env, networks, demonstrations, logs), closing the envs
-  rng swaps         the pack swapping each run's torch random stream in and out (``pack._own_rng``)
-  pack loop         what is left inside ``run_pack`` (guards, the schedule, the loop itself): not attributed
+  logging+ckpt      ``Trainer.after_step`` outside evaluation (metrics, policies, checkpoints), ``finish``,
+                    ``_close_logs``
+  setup             building the trainers, ``start`` (env, networks, demonstrations, logs), ``close`` (the envs)
+  driver loop       what is left inside ``train_runs``/``drive`` (run folders, guards, the loop itself): not
+                    attributed
 
 "floor" = physics (training + evaluation) + update products. Scheduler idle (a sweep's worker waiting for
 runs) does not exist in one process; the bench says so instead of inventing it. The lean env step is on
 unless ``MANISKILL_DUALHER_LEAN_STEP=0`` (compare the two for the env's share before/after).
 
-    python bench/step_budget.py [--tasks ReachTarget-v1,...] [--members 2] [--steps 3000] [--out FILE.json]
+    python bench/step_budget.py [--tasks ReachTarget-v1,...] [--members 2] [--steps 3000]
+                                [--learning-starts N] [--out FILE.json]
+
+``--learning-starts N`` (default: the preset's) sets both the random steps and the first update's env step
+(a short run that reaches its updates: tests/test_step_budget.py).
 
 Both the wall time (perf_counter) and the thread's CPU time (thread_time) are split: on a busy machine the wall
 time includes waiting for a core (inflating every part alike, on average), the CPU time does not; the header
@@ -39,18 +46,20 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import sys
 import tempfile
 import time
 import types
 from pathlib import Path
+from typing import Optional
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 PARTS = ("physics", "env python", "env reset", "acting", "episodes+store", "sampling", "priorities",
          "update products", "update overhead", "update logging", "eval physics", "eval python", "logging+ckpt",
-         "setup", "rng swaps", "pack loop")
+         "setup", "driver loop")
 FLOOR = ("physics", "eval physics", "update products")
 PRODUCTS = ("mm", "bmm", "addmm", "baddbmm", "mv")
 
@@ -64,7 +73,7 @@ class Clock:
         self.cpu = {p: 0.0 for p in PARTS}
         self.calls = {p: 0 for p in PARTS}
         self.intervals = {p: 0 for p in PARTS}  # timer intervals charged to each part (each holds ~one event's cost)
-        self.stack = ["pack loop"]
+        self.stack = ["driver loop"]
         self.events = 0
         self.reset()
 
@@ -129,21 +138,24 @@ class _Px:
 
 def instrument() -> None:
     import maniskill_dualher.sac_fused as sf
-    from maniskill_dualher import envs, train
+    import maniskill_dualher.tasks  # noqa: F401  (registers the tasks)
+    from maniskill_dualher import envs, pack, sac, train
+    from maniskill_dualher.replay import method as rm
 
     T = train.Trainer
     T.__init__ = timed(T.__init__, "setup")
     T.start = timed(T.start, "setup")
+    T.close = timed(T.close, "setup")
+    T.step = timed(T.step, "episodes+store")
     T._explore = timed(T._explore, "acting")
     T._store = timed(T._store, "episodes+store")
-    T.collect_step = timed(T.collect_step, "episodes+store")
+    T._updates_due = timed(T._updates_due, "update logging")  # the schedule's bookkeeping
     T.sample = timed(T.sample, "sampling")
-    T.apply_update = timed(T.apply_update, "update logging")
-    T.between_episodes = timed(T.between_episodes, "logging+ckpt")
+    T.learn = timed(T.learn, "update logging")
+    T.after_step = timed(T.after_step, "logging+ckpt")
     T.evaluate = timed(T.evaluate, "eval python")
     T.finish = timed(T.finish, "logging+ckpt")
-    T.close_logs = timed(T.close_logs, "logging+ckpt")
-    T.updates_due = timed(T.updates_due, "update logging")  # the schedule's bookkeeping
+    T._close_logs = timed(T._close_logs, "logging+ckpt")
     B = envs.BatchEnv
     B.step = timed(B.step, "env python", "eval python")
     B.reset = timed(B.reset, "env reset", "eval python")
@@ -157,8 +169,9 @@ def instrument() -> None:
             scene = self.unwrapped.scene
             scene.px = _Px(scene.px)
     B.__init__ = batch_env_init
-    from maniskill_dualher import sac
-    sac.SAC.update = timed(sac.SAC.update, "update overhead")  # one member: the update outside a pack
+    # the update: one run's (SAC.update), a pack's (Updater.round groups the due runs; FusedUpdate.step_pack)
+    pack.Updater.round = timed(pack.Updater.round, "update overhead")
+    sac.SAC.update = timed(sac.SAC.update, "update overhead")
     F = sf.FusedUpdate
     F.__call__ = timed(F.__call__, "update overhead")
     F.step_pack = timed(F.step_pack, "update overhead")
@@ -168,37 +181,7 @@ def instrument() -> None:
     for name in PRODUCTS:
         setattr(proxy, name, timed(getattr(torch, name), "update products"))
     sf.torch = proxy
-    # the pack's random-stream swaps (a module-level context manager its functions look up at call time)
-    import contextlib
-    from maniskill_dualher import pack
-    own_rng = pack._own_rng
-
-    @contextlib.contextmanager
-    def timed_own_rng(m):
-        cm = own_rng(m)
-        CLOCK.enter("rng swaps")
-        try:
-            cm.__enter__()
-        finally:
-            CLOCK.leave()
-        try:
-            yield
-        except BaseException:
-            CLOCK.enter("rng swaps")
-            try:
-                if not cm.__exit__(*sys.exc_info()):
-                    raise
-            finally:
-                CLOCK.leave()
-        else:
-            CLOCK.enter("rng swaps")
-            try:
-                cm.__exit__(None, None, None)
-            finally:
-                CLOCK.leave()
-    pack._own_rng = timed_own_rng
     # priority updates: every method's go through BufferMethod.update_priorities (replay/method.py)
-    from maniskill_dualher.replay import method as rm
     rm.BufferMethod.update_priorities = timed(rm.BufferMethod.update_priorities, "priorities")
 
 
@@ -206,7 +189,7 @@ def calibrate(n: int = 20000) -> dict:
     """Wall and CPU seconds one timer event costs (half an enter/leave pair around an empty call, less the call)."""
     global CLOCK
     saved, CLOCK = CLOCK, Clock()
-    f = timed(lambda: None, "pack loop")
+    f = timed(lambda: None, "driver loop")
     g = lambda: None  # noqa: E731
     out = {}
     for name, clock in (("wall", time.perf_counter), ("cpu", time.thread_time)):
@@ -229,31 +212,37 @@ def corrected(res: dict, per_event: dict) -> tuple:
                  for key, c in (("parts_wall_s", "wall"), ("parts_cpu_s", "cpu")))
 
 
-def run(task: str, members: int, steps: int, method: str) -> dict:
+def run(task: str, members: int, steps: int, method: str, learning_starts: Optional[int] = None) -> dict:
     global CLOCK
     from maniskill_dualher.experiment.presets import preset
-    from maniskill_dualher.pack import Job, run_pack
+    from maniskill_dualher.train import Job, train_runs
 
     jobs = []
     tmp = tempfile.mkdtemp(prefix="step_budget_")
     for seed in range(members):
         cfg = preset("quick").single_config(method, seed, task)
         cfg.total_steps = steps
+        if learning_starts is not None:
+            cfg.sac.random_steps = cfg.sac.learning_starts = learning_starts
         cfg.validate()
         jobs.append(Job(cfg, os.path.join(tmp, f"s{seed}")))
-    CLOCK = Clock()
-    cpu0, wall0 = time.process_time(), time.perf_counter()
-    CLOCK.reset()
-    rows = run_pack(jobs)
-    CLOCK._charge()
-    wall = time.perf_counter() - wall0
-    cpu = time.process_time() - cpu0
+    try:
+        CLOCK = Clock()
+        cpu0, wall0 = time.process_time(), time.perf_counter()
+        CLOCK.reset()
+        rows = train_runs(jobs)
+        CLOCK._charge()
+        wall = time.perf_counter() - wall0
+        cpu = time.process_time() - cpu0
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)  # the runs' folders (checkpoints, replay) are not the result
     errors = [r["error"] for r in rows if "error" in r]
     if errors:
         raise SystemExit(f"a run failed: {errors[0]!r}")
     env_steps = steps * members
     return {"task": task, "members": members, "steps_per_member": steps, "method": method, "wall_s": wall,
             "cpu_s": cpu, "training_env_steps": env_steps, "timer_events": CLOCK.events,
+            "updates": sum(int(r["row"]["updates"]) for r in rows),
             "parts_wall_s": dict(CLOCK.wall), "parts_cpu_s": dict(CLOCK.cpu), "calls": dict(CLOCK.calls),
             "intervals": dict(CLOCK.intervals), "cfg": jobs[0].cfg.to_dict()}
 
@@ -264,8 +253,10 @@ def report(res: dict, per_event: dict) -> str:
     pw, pc = corrected(res, per_event)
     tw, tc = sum(pw.values()), sum(pc.values())
     timer_w = res["wall_s"] - tw
+    starts = res["cfg"]["sac"]["learning_starts"]
     lines = [f"{res['task']}: {res['members']} members x {res['steps_per_member']} env steps ({res['method']}, "
-             f"quick preset, lean step {'on' if res['lean_step'] else 'off'}), wall {wall:.1f} s, process CPU "
+             f"quick preset, updates from env step {starts}: {res['updates']} in all, lean step "
+             f"{'on' if res['lean_step'] else 'off'}), wall {wall:.1f} s, process CPU "
              f"{cpu:.1f} s ({100 * cpu / wall:.0f}% of wall: the rest waited for a core)",
              f"per training env step, timer cost removed ({res['timer_events']} events x "
              f"{1e6 * per_event['wall']:.2f} us wall / {1e6 * per_event['cpu']:.2f} us CPU = {100 * timer_w / wall:.1f}% "
@@ -275,8 +266,8 @@ def report(res: dict, per_event: dict) -> str:
         lines.append(f"{p:<18}{1e3 * pw[p] / n:>13.3f}{100 * pw[p] / tw:>7.1f}%{1e3 * pc[p] / n:>13.3f}"
                      f"{100 * pc[p] / tc:>7.1f}%")
     lines.append(f"{'total':<18}{1e3 * tw / n:>13.3f}{100.0:>7.1f}%{1e3 * tc / n:>13.3f}{100.0:>7.1f}%")
-    lines.append(f"attributed (all but 'pack loop'): {100 * (1 - pw['pack loop'] / tw):.1f}% of wall, "
-                 f"{100 * (1 - pc['pack loop'] / tc):.1f}% of CPU")
+    lines.append(f"attributed (all but 'driver loop'): {100 * (1 - pw['driver loop'] / tw):.1f}% of wall, "
+                 f"{100 * (1 - pc['driver loop'] / tc):.1f}% of CPU")
     for name, parts, tot in (("wall", pw, tw), ("CPU", pc, tc)):
         floor = sum(parts[p] for p in FLOOR)
         lines.append(f"floor (physics + eval physics + update products), {name}: {1e3 * floor / n:.3f} ms/step "
@@ -296,6 +287,8 @@ def main(argv=None) -> None:
     p.add_argument("--members", type=int, default=2)
     p.add_argument("--steps", type=int, default=3000, help="env steps per member")
     p.add_argument("--method", default="dual_buffer")
+    p.add_argument("--learning-starts", type=int, default=None,
+                   help="random steps and first update's env step (default: the quick preset's)")
     p.add_argument("--out", help="JSON file for the raw numbers (atomic write)")
     p.add_argument("--load", default="", help="a note on the machine's load while this ran, kept in the output")
     args = p.parse_args(argv)
@@ -309,6 +302,13 @@ def main(argv=None) -> None:
     if args.members < 1 or args.steps < 1:
         print(f"--members={args.members} --steps={args.steps} must be >= 1", file=sys.stderr)
         raise SystemExit(2)
+    from maniskill_dualher.methods import method_names
+    if args.method not in method_names():
+        print(f"--method={args.method!r}: unknown method (choose from {','.join(method_names())})", file=sys.stderr)
+        raise SystemExit(2)
+    if args.learning_starts is not None and args.learning_starts < 0:
+        print(f"--learning-starts={args.learning_starts} must be >= 0", file=sys.stderr)
+        raise SystemExit(2)
     import torch
     torch.set_num_threads(1)
     from maniskill_dualher import envs
@@ -317,7 +317,7 @@ def main(argv=None) -> None:
     lean = envs.lean_step_wanted()
     results = []
     for task in tasks:
-        res = run(task, args.members, args.steps, args.method)
+        res = run(task, args.members, args.steps, args.method, args.learning_starts)
         res["lean_step"] = lean
         res["timer_event_s"] = per_event
         results.append(res)
