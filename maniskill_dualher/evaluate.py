@@ -156,6 +156,7 @@ def evaluate_policy(policy, env_id: Optional[str] = None, episodes: int = DEFAUL
             traj_name = f"{target}.seed{int(seed)}.n{int(episodes)}"
             env.env = RecordEpisode(env.env, str(record), save_video=_can_render(env), save_trajectory=True,
                                     record_env_state=True, trajectory_name=traj_name, video_fps=10)
+            env.lean, env.lean_off_reason = None, "recording"  # every step through the wrapper that records it
         eps = [_episode(policy, env, int(seed) + k, terminate, trace=(k == int(movie_episode) and movie is not None))
                for k in range(int(episodes))]
     finally:
