@@ -408,6 +408,20 @@ def test_steps_is_the_old_name_of_source_steps(tmp_path, capsys):
     assert sweep.parse_seeds("7,") == (7,) and sweep.parse_seeds("7") == tuple(range(7))
 
 
+def test_eta_within_25_percent_of_measured_wall_times():
+    """The dry run's ETA model against the wall times measured on CPU B (bench/results/eta_calibration_cpuB.json),
+    with the update seconds measured there in place of the live timing (this machine may be busy)."""
+    from maniskill_dualher.experiment.cost import grid_cost, local_wall_seconds
+    cal = json.loads((Path(__file__).resolve().parents[1] / "bench/results/eta_calibration_cpuB.json").read_text())
+    band = cal["band"]
+    for name, plan in cal["plans"].items():
+        nodes = build_grid(sweep.definition_from_args(sweep.make_parser().parse_args(plan["argv"])))
+        for upd in cal["update_s"].values():
+            cost = grid_cost([n.cfg for n in nodes], sweep.DEFAULT_PACK, update_s=lambda c, p: upd["value"])
+            eta = local_wall_seconds(cost.core_seconds_high, cost.runs, cal["workers"])
+            assert (1 - band) * plan["wall_s"] <= eta <= (1 + band) * plan["wall_s"], (name, upd, eta)
+
+
 def test_seeds_settings_and_dry_run(tmp_path, capsys):
     assert sweep.parse_seeds("3") == (0, 1, 2)
     assert sweep.parse_seeds("4,7") == (4, 7) and sweep.parse_seeds("7,") == (7,)
