@@ -156,6 +156,8 @@ def evaluate_policy(policy, env_id: Optional[str] = None, episodes: int = DEFAUL
             traj_name = f"{target}.seed{int(seed)}.n{int(episodes)}"
             env.env = RecordEpisode(env.env, str(record), save_video=_can_render(env), save_trajectory=True,
                                     record_env_state=True, trajectory_name=traj_name, video_fps=10)
+            # the lean step (tasks/lean.py) calls the task itself, past the wrapper: take ManiSkill's step
+            env.lean, env.lean_off_reason = None, "recording (RecordEpisode wraps ManiSkill's step)"
         eps = [_episode(policy, env, int(seed) + k, terminate, trace=(k == int(movie_episode) and movie is not None))
                for k in range(int(episodes))]
     finally:
