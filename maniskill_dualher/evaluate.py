@@ -1,6 +1,6 @@
 """Evaluate a trained policy: success with a confidence interval, on its own task or zero-shot on another.
 
-    python -m maniskill_dualher.evaluate POLICY [--task OTHER_TASK] [--episodes N] [--train-eval-seeds | --seed S]
+    python -m maniskill_dualher.evaluate POLICY [--task OTHER_TASK] [--episodes N] [--train-eval-seeds | --reset-seed S]
                                          [--best] [--record DIR] [--movie FILE.gif|.mp4 [--movie-episode K]] [--json]
     python -m maniskill_dualher.evaluate --zero-shot-matrix FOLDER [--episodes N] [--best]
 
@@ -16,7 +16,7 @@ used them (those are ``EVAL_SEED_BASE + i``, i < eval_episodes) and no training 
 episodes that chose it. ``--train-eval-seeds`` uses the training evaluations' seeds instead: with
 ``--episodes`` = the run's ``eval_episodes`` it reproduces the run's own evaluation (state for state on
 ReachTarget; once the hand touches a lid or door, PhysX's CPU simulation is not bit-reproducible across
-resets, so an episode in a fresh simulator can end a step earlier or later than in the run's). ``--seed S``
+resets, so an episode in a fresh simulator can end a step earlier or later than in the run's). ``--reset-seed S``
 picks any first seed. The output names the seed set. Episodes follow the training evaluation's rules
 (deterministic policy: tanh of the Gaussian mean). Always one CPU-simulated env (a GPU-trained policy
 evaluates here too).
@@ -156,7 +156,8 @@ def evaluate_policy(policy, env_id: Optional[str] = None, episodes: int = DEFAUL
             traj_name = f"{target}.seed{int(seed)}.n{int(episodes)}"
             env.env = RecordEpisode(env.env, str(record), save_video=_can_render(env), save_trajectory=True,
                                     record_env_state=True, trajectory_name=traj_name, video_fps=10)
-            env.lean, env.lean_off_reason = None, "recording"  # every step through the wrapper that records it
+            # the lean step (tasks/lean.py) calls the task itself, past the wrapper: take ManiSkill's step
+            env.lean, env.lean_off_reason = None, "recording (RecordEpisode wraps ManiSkill's step)"
         eps = [_episode(policy, env, int(seed) + k, terminate, trace=(k == int(movie_episode) and movie is not None))
                for k in range(int(episodes))]
     finally:
@@ -315,9 +316,10 @@ def build_parser() -> argparse.ArgumentParser:
     seeds.add_argument("--train-eval-seeds", action="store_true",
                        help=f"use the training evaluations' seeds (EVAL_SEED_BASE = {EVAL_SEED_BASE}, +1, ...): "
                             "reproduces the run's own evaluation, optimistic for a policy chosen by it (--best)")
-    seeds.add_argument("--seed", default=None, metavar="S",
-                       help="first reset seed; episodes use S, S+1, ... [default: HELDOUT_SEED_BASE = "
-                            f"{HELDOUT_SEED_BASE}, seeds no training evaluation used]")
+    seeds.add_argument("--reset-seed", "--seed", dest="seed", default=None, metavar="S",
+                       help="the first episode's env reset seed (not a training seed: the policy is fixed); "
+                            "episodes reset with S, S+1, ... [default: HELDOUT_SEED_BASE = "
+                            f"{HELDOUT_SEED_BASE}, seeds no training evaluation used] (--seed: old name)")
     p.add_argument("--best", action="store_true", help="use policy_best.pt (the best evaluation) instead of policy.pt")
     p.add_argument("--record", metavar="DIR", help="write ManiSkill .h5/.json trajectories (replayable to video) here")
     p.add_argument("--movie", metavar="FILE", help="draw one episode's state to FILE (.gif or .mp4)")
@@ -344,7 +346,7 @@ def main(argv=None) -> int:
     try:
         episodes = _int("episodes", args.episodes, 1)
         seed = EVAL_SEED_BASE if args.train_eval_seeds else \
-            HELDOUT_SEED_BASE if args.seed is None else _int("seed", args.seed, 0)
+            HELDOUT_SEED_BASE if args.seed is None else _int("reset-seed", args.seed, 0)
         if args.zero_shot_matrix:
             if args.run or args.task or args.record or args.movie:
                 raise ConfigError("--zero-shot-matrix takes no POLICY, --task, --record or --movie")

@@ -86,7 +86,9 @@ def draw_movie(ep: dict, info: dict, path, title_source=None, fps: int = 10,
         artists.append((i, j, tcp_path, tcp_now, ag_path, ag_now))
         if j == 2:
             ax.axhline(0.0, color="0.5", lw=0.8)  # table top
-    ax_xy.legend(fontsize=FS_SMALL, loc="best", framealpha=0.6)
+    # one row under the title, outside the views: inside, the narrow equal-aspect top view had it over ticks and points
+    fig.legend(*ax_xy.get_legend_handles_labels(), loc="upper center", bbox_to_anchor=(0.5, 0.955), ncol=3,
+               fontsize=FS_SMALL, frameon=False, handletextpad=0.3, columnspacing=1.5)
 
     steps = np.arange(T + 1)
     ax_d.set_title("distance to goal", fontsize=FS_TITLE)
@@ -124,7 +126,7 @@ def draw_movie(ep: dict, info: dict, path, title_source=None, fps: int = 10,
     if title_source is not None and title_source.env_id != info["env_id"]:
         src = f" (policy from {title_source.env_id}, zero-shot)"
     title = fig.suptitle("", fontsize=FS_TITLE)
-    fig.tight_layout(rect=(0, 0, 1, 0.95), pad=0.4, h_pad=0.6, w_pad=0.6)
+    fig.tight_layout(rect=(0, 0, 1, 0.91), pad=0.4, h_pad=0.6, w_pad=0.6)
 
     frames_at = np.unique(np.linspace(0, T, min(T + 1, max_frames)).round().astype(int))
     frames = []

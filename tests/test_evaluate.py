@@ -235,6 +235,30 @@ def test_cli_bad_input_is_one_line(trained, tmp_path, capsys, args, needle):
     assert len(err) == 1 and err[0].startswith("error:") and needle in err[0], err
 
 
+@pytest.mark.parametrize("args, needle", [
+    (["--reset-seed", "-1"], "--reset-seed must be >= 0, got -1"),
+    (["--seed", "x"], "--reset-seed: bad value 'x'"),  # the old name, same check
+    (["--reset-seed", "3", "--train-eval-seeds"], "not allowed with"),
+])
+def test_reset_seed_bad_input_one_line_nothing_written(tmp_path, capsys, args, needle):
+    movie = tmp_path / "m.gif"
+    try:
+        rc = main([str(tmp_path / "run"), *args, "--movie", str(movie)])
+    except SystemExit as e:
+        rc = e.code
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and err[0].startswith("error:") and needle in err[0], err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_help_says_the_seed_is_a_reset_seed(capsys):
+    with pytest.raises(SystemExit) as e:
+        main(["--help"])
+    assert e.value.code == 0
+    text = " ".join(capsys.readouterr().out.split())
+    assert "--reset-seed S, --seed S" in text and "env reset seed (not a training seed" in text
+
+
 def test_cli_bad_input_exit_code(tmp_path):
     r = cli(tmp_path / "missing")
     assert r.returncode == 2 and r.stderr.startswith("error:") and "Traceback" not in r.stderr

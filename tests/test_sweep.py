@@ -327,6 +327,14 @@ def test_run_transfer_chains_networks_and_replay(tmp_path):
     (["--workers", "0"], "--workers"),
     (["--set", "num_envs=4"], "physx_cuda"),
     (["--ray-address", "auto"], "--backend ray"),
+    (["--preset", "Quick"], "invalid choice: 'Quick' (choose from 'smoke', 'quick'"),
+    (["--source-steps", "0"], "--source-steps must be >= 1, got 0"),
+    (["--steps", "-5"], "--source-steps must be >= 1, got -5"),  # the old name, same check
+    (["--source-steps", "ten"], "'ten'"),
+    (["--adapt-steps", "0"], "--adapt-steps must be >= 1"),
+    (["--seeds", ","], "--seeds must list distinct seeds"),
+    (["--seeds", "7,7"], "--seeds must list distinct seeds"),
+    (["--seeds", "0"], "--seeds count must be >= 1"),
 ])
 def test_bad_input_one_line_exit_2_nothing_written(tmp_path, capsys, args, expect):
     out = tmp_path / "o"
@@ -369,6 +377,49 @@ def test_cli_bad_input_exit_code_and_single_error_line(tmp_path):
     ours = [ln for ln in r.stderr.splitlines() if ln.strip() and "Warning" not in ln and not ln.startswith("  warn(")]
     assert ours == ["error: ratio must be two non-negative numbers summing to 1, got '0.7/0.7'"], r.stderr
     assert not out.exists()
+
+
+def test_help_names_presets_budgets_and_the_one_seed_list(capsys):
+    from maniskill_dualher.experiment.presets import PRESETS
+    with pytest.raises(SystemExit) as e:
+        run_sweep(["--help"])
+    assert e.value.code == 0
+    text = " ".join(capsys.readouterr().out.split())  # argparse wraps lines
+    assert f"one of {', '.join(PRESETS)}" in text
+    assert "--source-steps N, --steps N" in text and "--adapt-steps N" in text
+    assert "'7,' is seed 7 ('7' is seeds 0-6)" in text
+
+
+def test_steps_is_the_old_name_of_source_steps(tmp_path, capsys):
+    """--steps and --source-steps plan the same runs; the adaptation gets 120/200 unless --adapt-steps."""
+    outs = []
+    for flag in ("--steps", "--source-steps"):
+        assert run_sweep(["--preset", "smoke", "--experiments", "transfer", "--seeds", "1", flag, "300",
+                          "--dry-run", "--out", str(tmp_path / "o")]) == 0
+        outs.append(capsys.readouterr().out)
+    assert outs[0] == outs[1]
+    last = outs[0].strip().splitlines()[-1]
+    # transfer: 2 methods x (2 source stages of 300 + an adaptation of 180)
+    assert last == "6 runs; 1560 env steps to go; nothing written (--dry-run)", last
+    a = sweep.make_parser().parse_args(["--steps", "300", "--adapt-steps", "50"])
+    d = sweep.definition_from_args(a)
+    assert set(d["budgets"]["source"].values()) == {300} and set(d["budgets"]["single"].values()) == {300}
+    assert set(d["budgets"]["adapt"].values()) == {50}
+    assert sweep.parse_seeds("7,") == (7,) and sweep.parse_seeds("7") == tuple(range(7))
+
+
+def test_eta_within_25_percent_of_measured_wall_times():
+    """The dry run's ETA model against the wall times measured on CPU B (bench/results/eta_calibration_cpuB.json),
+    with the update seconds measured there in place of the live timing (this machine may be busy)."""
+    from maniskill_dualher.experiment.cost import grid_cost, local_wall_seconds
+    cal = json.loads((Path(__file__).resolve().parents[1] / "bench/results/eta_calibration_cpuB.json").read_text())
+    band = cal["band"]
+    for name, plan in cal["plans"].items():
+        nodes = build_grid(sweep.definition_from_args(sweep.make_parser().parse_args(plan["argv"])))
+        for upd in cal["update_s"].values():
+            cost = grid_cost([n.cfg for n in nodes], sweep.DEFAULT_PACK, update_s=lambda c, p: upd["value"])
+            eta = local_wall_seconds(cost.core_seconds_high, cost.runs, cal["workers"])
+            assert (1 - band) * plan["wall_s"] <= eta <= (1 + band) * plan["wall_s"], (name, upd, eta)
 
 
 def test_seeds_settings_and_dry_run(tmp_path, capsys):

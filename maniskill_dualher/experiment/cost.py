@@ -5,25 +5,38 @@ after ``learning_starts``; ``"episode"`` (Algorithm 1) buys ``updates_per_episod
 episode: one per ``max_episode_steps`` env steps if no episode ends early, up to one per env step if
 every episode ends at once on success. The estimate gives that range.
 
-Time: one SAC update of the run's network and batch size is timed here (a few dozen updates on random
-data, one torch thread, as the sweep's workers run), plus a replay-sampling and priority overhead, and
-env steps cost ``ENV_STEP_S`` (``bench/env_speed.py`` on the AVX2 EPYC: ~1000 env steps/s for our tasks,
-one process; evaluation steps included at the preset's evaluation rate). It is an estimate: on CPU
-simulation the workers share the machine's cores, so the local wall time is the core-seconds divided
-by the workers; a Ray cluster's cost is the core-hours.
+Time, per run: one SAC update of the run's network and batch size is timed here (a few dozen updates on
+random data, one torch thread, as the sweep's workers run) plus a replay-sampling overhead; every env step
+(training and evaluation, evaluation episodes taken at full length) costs an env step plus acting; and
+each run pays its setup (env construction) before its loop. Each worker process pays its imports once.
+Local wall time = the runs' core-seconds / the workers + one worker's imports. The constants are measured
+(sources beside each); ``bench/results/eta_calibration_cpuB.json`` holds the measured wall times they are
+checked against (tests/test_sweep.py). The report built at the end is not counted. On CPU simulation the
+workers share the machine's cores; a Ray cluster's cost is the core-hours.
 """
 from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Dict, List, Tuple
+from typing import Callable, Dict, List, Optional, Tuple
 
-ENV_STEP_S = 1.0 / 1000.0     # bench/env_speed.py, AVX2 EPYC, our three tasks: 961-1063 env steps/s
-SAMPLE_OVERHEAD_S = 0.6e-3    # prioritized sample 256 + priority write-back (bench/replay_speed.py: 0.28 ms) + glue
+# One env step of our tasks, one thread: 0.87 ms on CPU B (CloseMicrowave, facts 2026-12-03), 0.98 ms on CPU A
+# (py-spy of a quick run, facts 2026-12-02), 0.94-1.04 ms on CPU C (bench/env_speed.py: 961-1063 steps/s).
+ENV_STEP_S = 0.93e-3
+# Acting (the actor's forward pass and the step's glue): 3.5% of a quick run's loop, ~0.14 ms per env step
+# (py-spy, CPU A, facts 2026-12-02).
+ACT_S = 0.14e-3
+SAMPLE_OVERHEAD_S = 0.6e-3    # prioritized sample 256 + priority write-back (bench/replay_speed.py: 0.28 ms;
+#                               py-spy of a quick run: 0.33 ms per update) + HER relabelling and glue
+# Before a process's first loop: ~12 s, of which ~10 s imports (py-spy, CPU A, facts 2026-12-02). A pool worker
+# imports once; each run builds its envs (the other ~2 s).
+WORKER_START_S = 10.0
+RUN_START_S = 2.0
 
 
 @dataclass
 class Cost:
+    runs: int
     env_steps: int
     updates_low: int
     updates_high: int
@@ -85,23 +98,32 @@ def update_seconds(cfg, obs_dim: int = 43, act_dim: int = 8, iters: int = 30, pa
     return _UPDATE_S[key]
 
 
-def grid_cost(cfgs: List, pack: int = 1) -> Cost:
-    """The cost of these runs, updates timed as a worker packing up to ``pack`` runs makes them."""
+def grid_cost(cfgs: List, pack: int = 1, update_s: Optional[Callable] = None) -> Cost:
+    """The cost of these runs, updates timed as a worker packing up to ``pack`` runs makes them
+    (``update_s(cfg, pack)``: seconds per update, default timed here by ``update_seconds``)."""
+    timed = update_s or (lambda c, p: update_seconds(c, pack=p))
     steps = sum(c.total_steps for c in cfgs)
     lo = hi = 0
     sec_lo = sec_hi = 0.0
     for c in cfgs:
         u_lo, u_hi = run_updates(c)
-        per_update = update_seconds(c, pack=min(pack, len(cfgs))) + SAMPLE_OVERHEAD_S
+        per_update = timed(c, min(pack, len(cfgs))) + SAMPLE_OVERHEAD_S
         evals = (c.total_steps // c.eval_every + 1) * c.eval_episodes * (c.max_episode_steps or 150)
-        env_s = (c.total_steps + evals) * ENV_STEP_S
+        fixed = RUN_START_S + (c.total_steps + evals) * (ENV_STEP_S + ACT_S)
         lo, hi = lo + u_lo, hi + u_hi
-        sec_lo += env_s + u_lo * per_update
-        sec_hi += env_s + u_hi * per_update
-    return Cost(steps, lo, hi, sec_lo, sec_hi)
+        sec_lo += fixed + u_lo * per_update
+        sec_hi += fixed + u_hi * per_update
+    return Cost(len(cfgs), steps, lo, hi, sec_lo, sec_hi)
+
+
+def local_wall_seconds(core_seconds: float, runs: int, workers: int) -> float:
+    """Wall time on this machine: the runs shared over the workers, each worker importing once in parallel."""
+    return core_seconds / max(1, min(workers, runs)) + WORKER_START_S
 
 
 def _dur(seconds: float) -> str:
+    if seconds < 90:
+        return f"{seconds:.0f} s"
     if seconds < 3600:
         return f"{seconds / 60:.0f} min"
     if seconds < 3 * 86400:
@@ -116,9 +138,9 @@ def describe(cost: Cost, workers: int) -> List[str]:
     rng = (lambda f: f(sec[0]) if sec[0] == sec[1] else f"{f(sec[0])} to {f(sec[1])}")
     return [
         f"cost: {cost.env_steps:,} env steps, {upd} gradient updates",
-        f"estimated time (update timed here, env steps at {1 / ENV_STEP_S:.0f}/s, evaluation included; "
-        "an estimate, not a measurement):",
+        f"estimated time (update timed here, env steps at {1 / (ENV_STEP_S + ACT_S):.0f}/s, evaluation and "
+        "startup included, the report not; an estimate, not a measurement):",
         f"  one CPU core: {rng(_dur)}; this machine with {workers} workers: "
-        f"{rng(lambda s: _dur(s / workers))}",
+        f"{rng(lambda s: _dur(local_wall_seconds(s, cost.runs, workers)))}",
         f"  a Ray cluster: {rng(lambda s: f'{s / 3600:,.0f} core-hours')} (wall time = that / its CPUs)",
     ]

@@ -90,12 +90,12 @@ def definition_from_args(a: argparse.Namespace) -> dict:
     p = preset(a.preset)
     budgets = {"single": dict(p.single_steps), "source": dict(p.stage_steps), "adapt": dict(p.adaptation_steps),
                "default": p.default_steps}
-    if a.steps is not None:
-        if a.steps < 1:
-            raise ConfigError(f"--steps must be >= 1, got {a.steps}")
+    if a.source_steps is not None:
+        if a.source_steps < 1:
+            raise ConfigError(f"--source-steps must be >= 1, got {a.source_steps}")
         for t in TASKS:
-            budgets["single"][t] = budgets["source"][t] = a.steps
-            budgets["adapt"][t] = max(1, round(a.steps * 120 / 200))  # paper: adaptation 120 vs 200 epochs
+            budgets["single"][t] = budgets["source"][t] = a.source_steps
+            budgets["adapt"][t] = max(1, round(a.source_steps * 120 / 200))  # paper: adaptation 120 vs 200 epochs
     if a.adapt_steps is not None:
         if a.adapt_steps < 1:
             raise ConfigError(f"--adapt-steps must be >= 1, got {a.adapt_steps}")
@@ -184,14 +184,16 @@ def make_parser() -> argparse.ArgumentParser:
                 "  python -m maniskill_dualher.sweep --preset paper --emit-commands jobs.txt   # SLURM: docs/cluster.md\n"
                 "  python -m maniskill_dualher.report runs/quick        # rebuild tables/plots from a sweep folder"),
     )
-    p.add_argument("--preset", choices=sorted(PRESETS), default="quick", help="budget preset (default: quick)")
+    p.add_argument("--preset", choices=list(PRESETS), default="quick", metavar="PRESET",
+                   help=f"budget preset, one of {', '.join(PRESETS)} (listed below; default: %(default)s)")
     p.add_argument("--experiments", help="comma list of experiment names, or default (the paper's four), "
                                          "ablations, all; NAME:ARM+ARM runs some of its arms (default: default)")
     p.add_argument("--tasks", help=f"tasks of single-task experiments (default: all: {','.join(TASKS)})")
     p.add_argument("--methods", help=f"comma list of {', '.join(METHOD_SPECS)} (default: all; each experiment "
                                      "uses those of them it is defined for)")
-    p.add_argument("--seeds", help="a count (3 -> seeds 0,1,2) or a list (0,4,7; one seed: '7,') for every "
-                                   "experiment; default: the preset's. Costly arms are capped (Arm/Experiment "
+    p.add_argument("--seeds", help="a count or a comma list, for every experiment: '3' is a count (seeds 0,1,2); "
+                                   "'0,4,7' lists seeds; one seed is a list of one, written with a trailing comma: "
+                                   "'7,' is seed 7 ('7' is seeds 0-6). Default: the preset's. Costly arms are capped (Arm/Experiment "
                                    "max_seeds; --dry-run names them): more seeds than a selected arm's cap are "
                                    "refused unless --allow-capped (then the cap applies)")
     p.add_argument("--allow-capped", action="store_true",
@@ -200,9 +202,12 @@ def make_parser() -> argparse.ArgumentParser:
                    help="seeds of chain and scratch experiments only (same syntax as --seeds)")
     p.add_argument("--task-order", default=",".join(TASKS),
                    help="the transfer chain; the last task is the adaptation target (default: %(default)s)")
-    p.add_argument("--steps", type=int, help="env steps of every single-task run and source stage "
-                                             "(adaptation stage: 120/200 of it, as in the paper)")
-    p.add_argument("--adapt-steps", type=int, help="env steps of the adaptation (last) stage")
+    p.add_argument("--source-steps", "--steps", dest="source_steps", type=int, metavar="N",
+                   help="env steps of every single-task run and every source (not last) stage of a chain; the "
+                        "adaptation (last) stage gets 120/200 of it, as in the paper, unless --adapt-steps. "
+                        "Not train's --total-steps: a chain's total is the sum of its stages (--steps: old name)")
+    p.add_argument("--adapt-steps", type=int, metavar="N",
+                   help="env steps of the adaptation (last) stage of a chain, and of scratch runs")
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="a RunConfig setting for every run, e.g. sac.lr=3e-4, or one stage: adapt.sac.random_steps=0 "
                         "(repeatable; keys below)")
