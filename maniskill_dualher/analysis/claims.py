@@ -355,6 +355,10 @@ def trend_row(scores, resamples: int) -> dict:
         verdict = ("supported" if t["low"] > 0 else "contradicted" if t["high"] < 0 else
                    "inconclusive (the slope's interval includes 0)")
     budgets = ", ".join(f"{f:g}x" for f in t["budgets"])
+    cells = {cell for f, cs in budget.BUDGETS if f in t["budgets"] for cell in cs}
+    used = [r for r in scores if (r["experiment"], r["arm"]) in cells and r["role"] == "adapt"
+            and r["metric"] == budget.COUNT and r["method"] in (DUAL, HER)]
+    row["machines"] = "; ".join(sorted(_machines(used)))
     return {**row, "side_a": f"dual_buffer/sac_her_per at {t['budgets'][-1]:g}x (budgets {budgets})",
             "n_a": t["n_dual"], "n_b": t["n_her"], "mean_a": t["ratio_last"], "mean_b": t["ratio_first"],
             "diff": t["slope"], "diff_ci95_low": t["low"], "diff_ci95_high": t["high"], "verdict": verdict,
