@@ -34,7 +34,7 @@ import json
 import os
 import sys
 from pathlib import Path
-from typing import Dict, List, Optional, Union
+from typing import Dict, List, Optional, Sequence, Union
 
 from .fileio import atomic_write_text
 
@@ -72,24 +72,19 @@ def write_done(run_dir: PathLike, final: dict, **extra) -> None:
     atomic_write_text(Path(run_dir) / DONE, json.dumps({"final": final, **extra}, indent=2) + "\n")
 
 
+def rows_text(rows: List[dict], first: Sequence[str]) -> str:
+    """CSV of dict rows: the ``first`` columns, then every other key in sorted order; cells as written."""
+    cols = list(first) + sorted({k for r in rows for k in r} - set(first))
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=cols, lineterminator="\n")
+    w.writeheader()
+    for r in rows:
+        w.writerow({k: r.get(k, "") for k in cols})
+    return buf.getvalue()
+
+
 def metrics_text(rows: List[dict]) -> str:
-    cols = list(METRIC_COLUMNS) + sorted({k for r in rows for k in r} - set(METRIC_COLUMNS))
-    buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=cols, lineterminator="\n")
-    w.writeheader()
-    for r in rows:
-        w.writerow({k: r.get(k, "") for k in cols})
-    return buf.getvalue()
-
-
-def csv_text(rows: List[dict]) -> str:
-    cols = sorted({k for r in rows for k in r}, key=lambda k: (k != "env_steps", k))
-    buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=cols, lineterminator="\n")
-    w.writeheader()
-    for r in rows:
-        w.writerow({k: r.get(k, "") for k in cols})
-    return buf.getvalue()
+    return rows_text(rows, METRIC_COLUMNS)
 
 
 def write_metrics(run_dir: PathLike, rows: List[dict]) -> None:
@@ -243,7 +238,7 @@ class RunFolder:
 
     def write_diagnostics(self, rows: List[dict]) -> None:
         """diagnostics.csv: the learner's per-update logs, averaged per batch source between evaluations."""
-        atomic_write_text(self.path / DIAGNOSTICS, csv_text(rows))
+        atomic_write_text(self.path / DIAGNOSTICS, rows_text(rows, ("env_steps",)))
 
     @property
     def done(self) -> bool:
