@@ -328,16 +328,12 @@ def main(argv=None) -> None:
         prov = provenance.provenance(ROOT)
         doc = {"command": " ".join([sys.argv[0]] + (argv if argv is not None else sys.argv[1:])),
                "lean_step": lean, "load": args.load, "timer_event_s": per_event,
-               "machine": "CPU B" if _is_cpu_b(prov["cpu"]) else provenance.machine_label(prov["cpu"]),
+               "machine": provenance.machine_name(prov["cpu"]),
                "provenance": prov, "results": results,
                "report": [report(r, per_event) for r in results]}
         atomic_write_text(args.out, json.dumps(doc, indent=1, default=str) + "\n")
         print(f"wrote {args.out}")
 
-
-def _is_cpu_b(cpu: dict) -> bool:
-    """CPU B (docs/speed.md): the 2-core AMD EPYC with AVX512-BF16."""
-    return bool(cpu.get("model") and "EPYC" in cpu["model"] and cpu.get("avx512_bf16") and cpu.get("cores") == 2)
 
 
 if __name__ == "__main__":

@@ -88,6 +88,21 @@ def machine_label(cpu: Optional[dict]) -> str:
     return f"{cpu['model']} ({isa})" if isa else str(cpu["model"])
 
 
+def machine_name(cpu: Optional[dict]) -> str:
+    """The machine as the README's machines table names it (CPU A: Intel Xeon with AVX512-BF16 and AMX; CPU B:
+    AMD EPYC with AVX512-BF16; CPU C: AMD EPYC with AVX2 only), or ``machine_label`` for any other CPU."""
+    if not cpu or not cpu.get("model"):
+        return ""
+    model = str(cpu["model"])
+    if "Xeon" in model and cpu.get("amx_bf16") and cpu.get("avx512_bf16"):
+        return "CPU A"
+    if "EPYC" in model and cpu.get("avx512_bf16") and not cpu.get("amx_bf16"):
+        return "CPU B"
+    if "EPYC" in model and cpu.get("avx2") and not cpu.get("avx512_bf16"):
+        return "CPU C"
+    return machine_label(cpu)
+
+
 def _torch_info() -> dict:
     try:
         import torch

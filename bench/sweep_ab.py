@@ -1,0 +1,136 @@
+"""This tree against a frozen clone of an earlier commit: the same small sweep, warmed up and interleaved.
+
+    python bench/sweep_ab.py --base /path/to/clone-of-the-base-commit [--order ABBA] [--rounds 1]
+        [--steps 3000] [--seeds 0,1] [--methods sac_her_per,dual_buffer]
+        [--tasks ReachTarget-v1,CloseBox-v1,CloseMicrowave-v1] [--preset reference] [--workers 2] [--json FILE]
+
+A is this working tree, B the clone at ``--base`` (``git clone <repo> DIR && git -C DIR checkout <commit>``).
+Each side runs ``python -m maniskill_dualher.sweep --preset P --experiments single ... --no-report`` from its
+own tree (``PYTHONPATH`` and working directory), into an empty temporary folder, as a user runs it: imports,
+pool start-up, evaluation and checkpoints included, the report excluded. First one short warm-up sweep per side
+(untimed: the file cache and bytecode warm), then the timed sweeps in ``--order`` repeated ``--rounds`` times
+(ABBA: each side once first and once second, so a drift of the machine over the run cancels).
+
+Prints and writes (``--json``): each timed sweep's wall time and training env steps per second, the ratio
+B wall / A wall of the medians, the ratio of every adjacent A/B pair (its spread), and whether every run's
+metrics (``metrics.csv`` without wall time) are identical between every sweep of both sides. Single sweeps on
+these 2-core machines vary by about +-10% (docs/speed.md): read the pair ratios' spread beside the ratio.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+
+def metrics(folder: Path) -> dict:
+    """Every run's metrics.csv rows without wall time, by run folder."""
+    out = {}
+    for f in sorted(folder.rglob("metrics.csv")):
+        with open(f) as fh:
+            out[str(f.parent.relative_to(folder))] = [{k: v for k, v in r.items() if k != "wall_time_s"}
+                                                     for r in csv.DictReader(fh)]
+    return out
+
+
+def git_commit(tree: Path) -> str:
+    r = subprocess.run(["git", "-C", str(tree), "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
+    dirty = subprocess.run(["git", "-C", str(tree), "status", "--porcelain", "--untracked-files=no"],
+                           capture_output=True, text=True).stdout.strip()
+    return (r.stdout.strip() or "unknown") + ("+dirty" if dirty else "")
+
+
+def sweep(tree: Path, out: Path, a, tasks: str, seeds: str, steps: int) -> float:
+    env = dict(os.environ, PYTHONPATH=str(tree))
+    env.pop("MANISKILL_DUALHER_LEAN_STEP", None)  # each side's default path
+    cmd = [sys.executable, "-m", "maniskill_dualher.sweep", "--preset", a.preset, "--experiments", "single",
+           "--tasks", tasks, "--methods", a.methods, "--seeds", seeds, "--steps", str(steps),
+           "--workers", str(a.workers), "--out", str(out), "--no-report"]
+    t0 = time.perf_counter()
+    r = subprocess.run(cmd, cwd=tree, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    wall = time.perf_counter() - t0
+    if r.returncode != 0:
+        raise RuntimeError(f"sweep in {tree} failed (exit {r.returncode}): {r.stderr.strip().splitlines()[-1:]}")
+    return wall
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--base", required=True, help="a clone of the base commit (side B)")
+    p.add_argument("--order", default="ABBA", help="the timed sweeps' order, letters A and B (default ABBA)")
+    p.add_argument("--rounds", type=int, default=1, help="repeat --order this many times")
+    p.add_argument("--steps", type=int, default=3000, help="env steps of every run")
+    p.add_argument("--seeds", default="0,1")
+    p.add_argument("--methods", default="sac_her_per,dual_buffer")
+    p.add_argument("--tasks", default="ReachTarget-v1,CloseBox-v1,CloseMicrowave-v1")
+    p.add_argument("--preset", default="reference")
+    p.add_argument("--workers", type=int, default=2)
+    p.add_argument("--warmup-steps", type=int, default=300)
+    p.add_argument("--json", help="also write the results here")
+    a = p.parse_args(argv)
+    base = Path(a.base).resolve()
+    if not (base / "maniskill_dualher" / "sweep.py").is_file():
+        print(f"error: --base {a.base!r} is not a clone of this project", file=sys.stderr)
+        return 2
+    if not a.order or set(a.order) - {"A", "B"} or a.rounds < 1:
+        print(f"error: --order must be letters A and B like ABBA and --rounds >= 1, got {a.order!r}, {a.rounds}",
+              file=sys.stderr)
+        return 2
+    if a.steps < 1:
+        print(f"error: --steps must be >= 1, got {a.steps}", file=sys.stderr)
+        return 2
+
+    from maniskill_dualher.provenance import cpu_info, machine_label, machine_name
+    trees = {"A": REPO, "B": base}
+    commits = {k: git_commit(t) for k, t in trees.items()}
+    n_runs = len([x for x in a.seeds.split(",") if x]) * len(a.methods.split(",")) * len(a.tasks.split(","))
+    load = " ".join(Path("/proc/loadavg").read_text().split()[:3]) if Path("/proc/loadavg").exists() else "?"
+    print(f"machine: {machine_name(cpu_info())}, {machine_label(cpu_info())}; {os.cpu_count()} logical cores; {a.workers} workers; "
+          f"load before: {load}")
+    print(f"A = {REPO} ({commits['A']}), B = {base} ({commits['B']})")
+    print(f"sweep: preset {a.preset}, single-task, {n_runs} runs x {a.steps} env steps; order "
+          f"{a.order} x {a.rounds}")
+    timed, seen = [], {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for side in "AB":
+            sweep(trees[side], Path(tmp) / f"warm{side}", a, a.tasks.split(",")[0], "0,", a.warmup_steps)
+        for i, side in enumerate(a.order * a.rounds):
+            out = Path(tmp) / f"{i}{side}"
+            wall = sweep(trees[side], out, a, a.tasks, a.seeds, a.steps)
+            seen[i] = metrics(out)
+            steps = n_runs * a.steps
+            timed.append({"i": i, "side": side, "wall_s": round(wall, 2), "env_steps_per_s": round(steps / wall, 1)})
+            print(f"  {i:>2} {side}: {wall:7.1f} s  {steps / wall:7.1f} env steps/s", flush=True)
+    walls = {s: [t["wall_s"] for t in timed if t["side"] == s] for s in "AB"}
+    ratio = statistics.median(walls["B"]) / statistics.median(walls["A"]) if walls["A"] and walls["B"] else None
+    pairs = [round(y["wall_s"] / x["wall_s"] if x["side"] == "A" else x["wall_s"] / y["wall_s"], 3)
+             for x, y in zip(timed, timed[1:]) if x["side"] != y["side"]]
+    ref = seen[0]
+    same = all(m == ref for m in seen.values()) and len(ref) == n_runs
+    if ratio is not None:
+        print(f"A is x{ratio:.2f} B's speed (median wall B / median wall A); adjacent A/B pairs: "
+              f"{', '.join(f'x{r:.2f}' for r in pairs)}")
+    print(f"metrics of every run identical in every sweep of both sides (wall time aside): {same} ({len(ref)} runs)")
+    if a.json:
+        from maniskill_dualher.fileio import atomic_write_text
+        doc = {"command": " ".join(["bench/sweep_ab.py"] + (sys.argv[1:] if argv is None else list(argv))),
+               "machine": machine_name(cpu_info()), "cpu": machine_label(cpu_info()), "load_before": load, "commits": commits,
+               "workers": a.workers, "preset": a.preset, "runs": n_runs, "steps": a.steps, "order": a.order,
+               "rounds": a.rounds, "timed": timed, "ratio_median_wall_B_over_A": ratio, "pair_ratios": pairs,
+               "identical": same}
+        atomic_write_text(Path(a.json), json.dumps(doc, indent=1) + "\n")
+    return 0 if same else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
