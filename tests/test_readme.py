@@ -1,45 +1,103 @@
-"""The README's claims table is the reference's claims.csv, word for word: means, n, interval, verdict, machine,
-whether the verdict survives Holm.
+"""The README's Finding and Why say no more than the reference's claims.csv.
 
-Hand-edited numbers drift when the reference is re-merged; this catches it."""
+Every sentence of the Why cites a claim (its id in backticks); every number with an interval, ``x [lo, hi]``, in a
+sentence is the difference or the ratio of means of a claim that sentence cites, at the precision shown; a cited
+claim decided at 95% that does not survive Holm carries a dagger, one that survives carries none. Hand-edited
+numbers drift when the reference is re-merged; this catches it."""
+import re
 from pathlib import Path
 
-from maniskill_dualher.analysis.report import _g
 from maniskill_dualher.analysis.runs import read_rows
 
 REPO = Path(__file__).resolve().parents[1]
-# README's machine column: A and B as its legend names them (results/reference/HOW_MADE.md)
-MACHINE_LETTER = {"Intel(R) Xeon(R) Processor": "A", "AMD EPYC": "B"}
+INTERVAL = re.compile(r"(−?-?\d+(?:\.\d+)?)x? \[(−?-?\d+(?:\.\d+)?), (−?-?\d+(?:\.\d+)?)\]")
+CITE = re.compile(r"`([a-z_']+)`(†?)")
 
 
 def _claims():
     return {r["claim"]: r for r in read_rows(REPO / "results" / "reference" / "claims.csv")}
 
 
-def _readme_rows(claims):
-    rows = {}
-    for line in (REPO / "README.md").read_text().splitlines():
-        cells = [c.strip() for c in line.strip().strip("|").split("|")]
-        if line.startswith("| ") and cells[0] in claims:
-            rows[cells[0]] = cells
-    return rows
+def _section(name: str) -> str:
+    text = (REPO / "README.md").read_text()
+    start = text.index(f"**{name}**")
+    end = min(i for i in (text.find("\n\n", start), len(text)) if i >= 0)
+    return text[start:end]
 
 
-def _num(text):
-    return _g(float(text))
+def _sentences(paragraph: str):
+    # a sentence ends at '.' followed by a space and a capital, a backtick or a bold marker
+    return [s.strip() for s in re.split(r"(?<=\.)\s+(?=[A-Z*`])", " ".join(paragraph.split())) if s.strip()]
 
 
-def test_readme_claims_table_is_the_references_claims_csv_word_for_word():
+def _float(s: str) -> float:
+    return float(s.replace("−", "-"))
+
+
+def _decimals(s: str) -> int:
+    return len(s.split(".")[1]) if "." in s else 0
+
+
+def _matches(shown: str, value: str) -> bool:
+    if not value:
+        return False
+    return abs(abs(_float(shown)) - abs(float(value))) <= 0.5 * 10 ** -_decimals(shown) + 1e-9
+
+
+def _interval_of(claim: dict, point: str, lo: str, hi: str) -> bool:
+    for mid, low, high in (("diff", "diff_ci95_low", "diff_ci95_high"),
+                           ("ratio", "ratio_ci95_low", "ratio_ci95_high")):
+        if not claim.get(mid):
+            continue
+        # a cost may be written as a positive number: -89 [-159, -18] reads "costs 89 [18, 159]"
+        ends = ((low, high), (high, low))
+        if _matches(point, claim[mid]) and any(_matches(lo, claim[a]) and _matches(hi, claim[b]) for a, b in ends):
+            return True
+    return False
+
+
+def _check(paragraph: str, claims: dict, every_sentence_cites: bool):
+    cited_anywhere = set()
+    for sentence in _sentences(paragraph):
+        if sentence.startswith("**"):
+            continue  # the paragraph's bold lead and legend
+        cites = [(c, dagger) for c, dagger in CITE.findall(sentence) if c in claims]
+        if every_sentence_cites:
+            assert cites, f"a Why sentence cites no claim: {sentence!r}"
+        for claim, dagger in cites:
+            r = claims[claim]
+            assert r.get("n_a"), f"{claim} is cited but not measured"
+            if r["survives_holm"] == "no":
+                assert dagger, f"{claim} does not survive Holm: cite it as `{claim}`†: {sentence!r}"
+            else:
+                assert not dagger, f"{claim} survives Holm or is undecided, no dagger: {sentence!r}"
+            cited_anywhere.add(claim)
+        for point, lo, hi in INTERVAL.findall(sentence):
+            assert any(_interval_of(claims[c], point, lo, hi) for c, _ in cites), (
+                f"{point} [{lo}, {hi}] is no cited claim's interval in {sentence!r}")
+    return cited_anywhere
+
+
+def test_finding_cites_claims_with_their_intervals():
     claims = _claims()
-    rows = _readme_rows(claims)
-    measured = {k for k, r in claims.items() if r.get("n_a")}
-    # every measured claim is in the table, and nothing the reference did not measure
-    assert set(rows) == measured, (sorted(measured - set(rows)), sorted(set(rows) - measured))
-    for key, cells in rows.items():
-        r = claims[key]
-        assert cells[2] == f"{_num(r['mean_a'])} vs {_num(r['mean_b'])} ({r['n_a']}, {r['n_b']})", key
-        assert cells[3] == f"{_num(r['diff'])} [{_num(r['diff_ci95_low'])}, {_num(r['diff_ci95_high'])}]", key
-        assert cells[4] == r["verdict"], key
-        letters = {letter for cpu, letter in MACHINE_LETTER.items() if cpu in r["machines"]}
-        assert letters and set(cells[5].split("+")) == letters, (key, cells[5], r["machines"])
-        assert cells[6] == (r["survives_holm"] or "–"), (key, cells[6], r["survives_holm"])
+    cited = _check(_section("Finding"), claims, every_sentence_cites=False)
+    assert {"a", "b"} <= cited
+
+
+def test_every_why_sentence_cites_a_claim_with_its_interval_and_holm():
+    claims = _claims()
+    cited = _check(_section("Why"), claims, every_sentence_cites=True)
+    assert len(cited) >= 4
+
+
+def test_the_checker_rejects_a_drifted_number():
+    claims = {"a": {"n_a": "32", "diff": "-113.2", "diff_ci95_low": "-158.9", "diff_ci95_high": "-67.5",
+                    "survives_holm": "yes", "ratio": "", "ratio_ci95_low": "", "ratio_ci95_high": ""}}
+    _check("It loses −113 [−159, −68] (`a`).", claims, every_sentence_cites=True)
+    for bad in ("It loses −113 [−159, −60] (`a`).", "It loses −113 [−159, −68].",
+                "It loses −113 [−159, −68] (`a`†)."):
+        try:
+            _check(bad, claims, every_sentence_cites=True)
+        except AssertionError:
+            continue
+        raise AssertionError(f"accepted {bad!r}")
