@@ -418,7 +418,7 @@ def test_adjusted_p_values_within_each_family_and_machine_balance():
 def test_mechanism_and_budget_claims_read_not_measured_until_their_runs_exist():
     rows = {r["claim"]: r for r in claims_mod.claim_rows([], 200)}
     for key in ("scratch_e_off", "scratch_e_batches", "scratch_r_updates", "scratch_e_on_starved",
-                "adapt_r_updates", "adapt_e_on_starved", "matched_prior", "matched_a"):
+                "adapt_r_updates", "adapt_e_on_starved", "matched_prior", "matched_a", "matched_gain"):
         assert rows[key]["verdict"] == "not measured (runs missing)", key
     assert rows["budget_trend"]["verdict"].startswith("not measured (needs >= 3 budgets")
 
