@@ -19,9 +19,10 @@ training env step (summed over members):
                     (``SAC.update``, ``FusedUpdate``), and ``Updater.round`` grouping the due runs into packs
   update logging    the rest of ``Trainer.learn`` (counters, diagnostics, TensorBoard every log_every updates)
                     and ``Trainer._updates_due`` (the update schedule)
-  eval physics      PhysX's substeps inside ``Trainer.evaluate``
+  eval physics      PhysX's substeps inside ``train.evaluate_runs``/``Trainer.evaluate``
   eval python       the rest of evaluation (its env Python, resets, acting, episode bookkeeping)
-  logging+ckpt      ``Trainer.after_step`` outside evaluation (metrics, policies, checkpoints), ``finish``,
+  logging+ckpt      ``Trainer.between_episodes``/``after_step`` (cut episodes, metrics, policies,
+                    checkpoints), ``finish``,
                     ``_close_logs``
   setup             building the trainers, ``start`` (env, networks, demonstrations, logs), ``close`` (the envs)
   driver loop       what is left inside ``train_runs``/``drive`` (run folders, guards, the loop itself): not
@@ -152,8 +153,10 @@ def instrument() -> None:
     T._updates_due = timed(T._updates_due, "update logging")  # the schedule's bookkeeping
     T.sample = timed(T.sample, "sampling")
     T.learn = timed(T.learn, "update logging")
+    T.between_episodes = timed(T.between_episodes, "logging+ckpt")
     T.after_step = timed(T.after_step, "logging+ckpt")
     T.evaluate = timed(T.evaluate, "eval python")
+    train.evaluate_runs = timed(train.evaluate_runs, "eval python")  # runs due together: side by side
     T.finish = timed(T.finish, "logging+ckpt")
     T._close_logs = timed(T._close_logs, "logging+ckpt")
     B = envs.BatchEnv

@@ -170,8 +170,17 @@ class BatchEnv:
         o, g = self.spec.obs_dim, self.spec.goal_dim
         return flat[..., :o], flat[..., o:o + g], flat[..., o + g:o + 2 * g]
 
-    def policy_input(self, flat: np.ndarray) -> np.ndarray:
-        """Network input: observation ‖ desired goal (the achieved goal is not an input)."""
+    def policy_input(self, flat: np.ndarray, out: Optional[np.ndarray] = None) -> np.ndarray:
+        """Network input: observation ‖ desired goal (the achieved goal is not an input). ``out``: an (N, input)
+        float32 array to write it into (an evaluation loop's reused buffer); returned."""
+        if out is not None:
+            if not self.is_goal:
+                out[...] = flat
+                return out
+            o, g = self.spec.obs_dim, self.spec.goal_dim
+            out[..., :o] = flat[..., :o]
+            out[..., o:] = flat[..., o + g:o + 2 * g]
+            return out
         if not self.is_goal:
             return flat
         o, ag, dg = self.split(flat)

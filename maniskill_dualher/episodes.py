@@ -14,7 +14,7 @@ on ``truncated``, or at ``max_episode_steps``. With ``terminate_on_success`` off
 """
 from __future__ import annotations
 
-from typing import Callable, Dict, List, Optional, Sequence
+from typing import Callable, Dict, Generator, List, NamedTuple, Optional, Sequence
 
 import numpy as np
 
@@ -61,15 +61,19 @@ class EnvEpisodes:
         self.pending[:] = True
 
     # ------------------------------------------------------------------ steps
-    def step(self, action: np.ndarray, record: Optional[np.ndarray] = None) -> np.ndarray:
-        """One env step under the episode rules; stores it; returns which envs' episodes ended (N,) bool.
-        ``record``: envs whose step is stored (default: all)."""
+    def _env_step(self, action: np.ndarray):
+        """One env step under the episode rules -> (next flat, reward, terminated, success, ended), all (N, ...)."""
         nxt, rew, term, trunc, succ = self.env.step(action)
         succ = succ if succ is not None else np.zeros(self.n_envs, bool)
         if self.success_terminates and not self.terminate_on_success:
             term = np.zeros_like(term)  # fixed-length episodes: success is not terminal
         self.t += 1
-        ended = term | trunc | (self.t >= self.max_steps)
+        return nxt, rew, term, succ, term | trunc | (self.t >= self.max_steps)
+
+    def step(self, action: np.ndarray, record: Optional[np.ndarray] = None) -> np.ndarray:
+        """One env step under the episode rules; stores it; returns which envs' episodes ended (N,) bool.
+        ``record``: envs whose step is stored (default: all)."""
+        nxt, rew, term, succ, ended = self._env_step(action)
         self._store_step(dict(flat=self.flat, action=action, reward=rew, next_flat=nxt, terminated=term,
                               success=succ), np.arange(self.n_envs) if record is None else np.flatnonzero(record))
         self.flat = nxt
@@ -119,3 +123,54 @@ class EnvEpisodes:
                 out[i] = self.pop(i)
         self.pending[:] = True
         return out  # type: ignore[return-value]
+
+    def scores(self, seed: int) -> Generator[np.ndarray, np.ndarray, List[Score]]:
+        """``rollout`` for an evaluation: the same resets and env steps, keeping per episode only what its metrics
+        read (``Score``) instead of its arrays. A generator, so that several runs' evaluations can step side by
+        side (``train.evaluate_runs``): it yields the policy input (N, input) float32, a buffer rewritten at
+        every step, is sent the actions (N, A), and returns one Score per env."""
+        self.reset_all(seed)
+        n, env = self.n_envs, self.env
+        x = np.empty((n, self.spec.input_dim), np.float32)
+        open_ = np.ones(n, bool)
+        rewards: Optional[np.ndarray] = None  # (T, N) as the env returns them: a return sums them as pop's arrays do
+        success = np.zeros(n, bool)
+        last = np.zeros(n, bool)
+        out: List[Optional[Score]] = [None] * n
+        while True:
+            action = yield env.policy_input(self.flat, out=x)
+            nxt, rew, _, succ, ended = self._env_step(action)
+            if rewards is None:
+                rewards = np.zeros((self.max_steps, n), np.asarray(rew).dtype)
+            if n == 1:  # training's case: no fancy indexing
+                rewards[self.length[0], 0] = rew[0]
+                success[0] |= succ[0]
+                last[0] = succ[0]
+                self.length[0] += 1
+            else:
+                idx = np.flatnonzero(open_)
+                rewards[self.length[idx], idx] = rew[idx]
+                success[idx] |= succ[idx]
+                last[idx] = succ[idx]
+                self.length[idx] += 1
+            self.flat = nxt
+            self.pending |= ended
+            done = ended & open_
+            if done.any():
+                for i in np.flatnonzero(done):
+                    L = int(self.length[i])
+                    out[i] = Score(rewards[:L, i:i + 1].copy().sum(), bool(success[i]), bool(last[i]), L)
+                open_ &= ~done
+                if not open_.any():
+                    break
+        self.pending[:] = True
+        return out  # type: ignore[return-value]
+
+
+class Score(NamedTuple):
+    """What an evaluation's metrics read of one episode: the sum of its rewards (numpy's sum of the episode's
+    (T, 1) reward array, as ``Episode.reward.sum()``), whether it succeeded at any step, at its last step, its length."""
+    ret: np.floating
+    success: bool
+    success_at_end: bool
+    length: int

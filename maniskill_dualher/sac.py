@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import contextlib
 import math
-from typing import Dict, List, Optional, Tuple
+from typing import Callable, Dict, List, Optional, Tuple
 
 import numpy as np
 import torch
@@ -37,12 +37,16 @@ from .sac_fused import FusedUpdate
 LOG_STD_MIN, LOG_STD_MAX = -5.0, 2.0
 
 
+def precision_setting(precision: str) -> str:
+    """SACConfig.matmul_precision -> torch's float32 matmul setting ("bf16" is the fused update's own)."""
+    return "highest" if precision == "bf16" else precision
+
+
 @contextlib.contextmanager
 def matmul_precision(precision: str):
     """torch.set_float32_matmul_precision for a block, restored after (it is process-global). "bf16" (the
     fused update's own bf16 products, sac_fused.py) runs every other product in strict fp32."""
-    if precision == "bf16":
-        precision = "highest"
+    precision = precision_setting(precision)
     old = torch.get_float32_matmul_precision()
     if old == precision:
         yield
@@ -141,6 +145,24 @@ class Actor(nn.Module):
         mu, _ = self.net(obs).chunk(2, dim=-1)
         return torch.tanh(mu)
 
+    def bare_mean_action(self) -> Callable[[torch.Tensor], torch.Tensor]:
+        """``mean_action`` as a plain function over this actor's weights, for loops that act many times between
+        updates (evaluation): the same ops (``F.linear``, ReLU, tanh of the mean half) on detached views of the
+        same parameters, so no module call, no distribution and nothing recorded for autograd, bit for bit
+        (tests/test_sac.py). The views share the parameters' memory: an in-place update shows through."""
+        layers = [(m.weight.detach(), m.bias.detach()) for m in self.net if isinstance(m, nn.Linear)]
+        if len(layers) != sum(1 for m in self.net if not isinstance(m, nn.ReLU)):
+            raise TypeError("bare_mean_action knows Linear and ReLU layers only")  # mlp() builds no others
+        *hidden, (w_out, b_out) = layers
+        n_act = w_out.shape[0] // 2
+        linear, relu_, tanh = F.linear, torch.relu_, torch.tanh
+
+        def act(x: torch.Tensor) -> torch.Tensor:
+            for w, b in hidden:
+                x = relu_(linear(x, w, b))
+            return tanh(linear(x, w_out, b_out)[..., :n_act])  # chunk(2)'s first half: the same view
+        return act
+
 
 class SAC(nn.Module):
     """The agent. ``generator`` (on ``device``): the random stream of its actions and updates;
@@ -192,6 +214,25 @@ class SAC(nn.Module):
         with matmul_precision(self.cfg.matmul_precision):
             a = self.actor.mean_action(x) if deterministic else self.actor.sample(x)
         return a.cpu().numpy()
+
+    def deterministic_actor(self) -> Callable[[np.ndarray], np.ndarray]:
+        """``act(x, deterministic=True)`` for float32 numpy input without its per-call wrapping (module calls,
+        no_grad), bit for bit: for evaluation loops. The precision switch is made per call only if this
+        agent's precision is not torch's current one (the global setting, as ``act`` would leave it)."""
+        f = self.actor.bare_mean_action()
+        if self.device.type == "cpu":
+            g = lambda x: f(torch.from_numpy(x)).numpy()  # noqa: E731
+        else:
+            dev = self.device
+            g = lambda x: f(torch.as_tensor(x, dtype=torch.float32, device=dev)).cpu().numpy()  # noqa: E731
+        precision = self.cfg.matmul_precision
+        if precision_setting(precision) == torch.get_float32_matmul_precision():
+            return g
+
+        def switched(x: np.ndarray) -> np.ndarray:
+            with matmul_precision(precision):
+                return g(x)
+        return switched
 
     def policy_parameters(self) -> List[torch.Tensor]:
         """The actor's parameters and log alpha: what a critic-only batch leaves alone."""

@@ -4,9 +4,9 @@
 
 ``train_runs`` reads top to bottom as the whole loop: every run acts, steps and stores one env step; the
 updates that are due are made (batched across runs with equal networks and settings, ``pack.Updater``: that
-is the only thing packing changes); every run evaluates, checkpoints, pauses or finishes between episodes.
-A run (``Trainer``) is plain state with ``step()``, ``sample()``/``learn()`` around its update and
-``after_step()``; it owns its env, replay, optimizer, counters, folder and its ``torch.Generator``, so its
+is the only thing packing changes, besides runs evaluating at the same step side by side); every run
+evaluates, checkpoints, pauses or finishes between episodes. A run (``Trainer``) is plain state with ``step()``,
+``sample()``/``learn()`` around its update and ``between_episodes()``/``evaluation()``/``after_step()``; it owns its env, replay, optimizer, counters, folder and its ``torch.Generator``, so its
 metrics and weights do not depend on which runs share its process (``tests/test_pack.py``).
 
 A run folder is the unit of truth: ``config.json``, ``metrics.csv`` (one row per evaluation),
@@ -30,7 +30,7 @@ import math
 import sys
 import time
 from pathlib import Path
-from typing import Callable, List, Optional, Sequence
+from typing import Callable, Generator, List, Optional, Sequence
 
 import numpy as np
 import torch
@@ -38,7 +38,7 @@ import torch
 from .config import ConfigError, RunConfig
 from .counters import Counters
 from .envs import EVAL_SEED_BASE, BatchEnv, make_env, train_episode_seed
-from .episodes import EnvEpisodes
+from .episodes import EnvEpisodes, Score
 from .pack import Updater
 from .policy import save_policy
 from .replay.base import Episode
@@ -125,10 +125,47 @@ def drive(runs: Sequence["Trainer"], stop_at: Optional[int] = None, close_finish
             _guard(run, results, live, run.step)
         for j in range(max((run.due for run in live), default=0)):             # update when due
             updater.round([run for run in live if run.due > j], lambda run, e: _fail(run, e, results, live))
-        for run in list(live):                                                 # evaluate, checkpoint, stop
-            _guard(run, results, live, lambda: run.after_step(stop_at))
+        for run in list(live):                                                 # between episodes:
+            _guard(run, results, live, lambda: run.between_episodes(stop_at))  # what is due, episodes cut
+        evaluate_runs([run for run in live if run.eval_due],                   # evaluations, side by side
+                      lambda run, e: _fail(run, e, results, live))
+        for run in list(live):                                                 # metrics, checkpoint, stop
+            _guard(run, results, live, run.after_step)
             _settle(run, results, live, close_finished)
     return results
+
+
+def evaluate_runs(runs: Sequence["Trainer"], fail: Callable[["Trainer", Exception], None]) -> None:
+    """The evaluations due now (``Trainer.eval_due``), each run's metrics into its ``evaluated``; ``fail(run, e)``
+    writes off a run whose evaluation raised. One run: ``Trainer.evaluate``. Several (a pack): their evaluation
+    envs step side by side, one env step of every member in turn, each member acting with its own forward:
+    the same env calls and actions as alone, so the same numbers. Not one batched forward across members:
+    a stacked product is not bit-identical to the members' own on every machine (docs/speed.md)."""
+    if len(runs) == 1:
+        try:
+            runs[0].evaluated = runs[0].evaluate()
+        except Exception as e:
+            fail(runs[0], e)
+        return
+    steppers = []  # [run, its evaluation (generator), its forward, its policy input]
+    for run in runs:
+        try:
+            gen = run.evaluation()
+            steppers.append([run, gen, run.agent.deterministic_actor(), next(gen)])
+        except Exception as e:
+            fail(run, e)
+    while steppers:
+        going = []
+        for s in steppers:
+            run, gen, act, x = s
+            try:
+                s[3] = gen.send(act(x))
+                going.append(s)
+            except StopIteration as stop:
+                run.evaluated = stop.value
+            except Exception as e:
+                fail(run, e)
+        steppers = going
 
 
 def _settle(run: "Trainer", results: List[Optional[dict]], live: List["Trainer"], close_finished: bool) -> None:
@@ -224,8 +261,10 @@ def train_chain(stages: List[RunConfig], out_dir, carry_replay: bool = True,
 # --------------------------------------------------------------------------- one run
 class Trainer:
     """One run's state and its steps (``train_runs`` drives them): ``start``; per env step ``step`` (act, step,
-    store; sets ``due``), ``due`` times ``sample`` -> the update -> ``learn``, and ``after_step`` (between
-    episodes: evaluate, checkpoint, pause or finish; sets ``state`` and ``final_row``); ``close``."""
+    store; sets ``due``), ``due`` times ``sample`` -> the update -> ``learn``, and between episodes
+    ``between_episodes`` (what is due; sets ``eval_due``), the evaluation (``evaluate``, or ``evaluation``
+    stepped beside other runs', ``evaluate_runs``) and ``after_step`` (metrics, checkpoint, pause or finish;
+    sets ``state`` and ``final_row``); ``close``."""
 
     def __init__(self, cfg: RunConfig, out_dir, init_from=None, carry_replay: bool = False,
                  show_progress: bool = True, keep_replay: bool = False, progress: Optional[Progress] = None):
@@ -261,6 +300,9 @@ class Trainer:
         self.k = 0                  # its index among the driver's jobs
         self.ended = np.zeros(self.spec.num_envs, dtype=bool)  # which envs' episodes ended this step
         self.due = 0                # updates due this step
+        self.eval_due = False       # between episodes: an evaluation is due (drive makes it into ``evaluated``)
+        self.evaluated: Optional[dict] = None
+        self._between: Optional[tuple] = None  # (finished, stopping, checkpoint due) for after_step
         self.state = "running"      # then "paused" (at stop_at) or "finished"
         self.final_row: Optional[dict] = None
         self.tb = self.bar = None
@@ -369,22 +411,37 @@ class Trainer:
             for k, v in self.method.stats().items():
                 self.tb.add_scalar(f"replay/{k}", v, c.env_steps)
 
-    def after_step(self, stop_at: Optional[int]) -> None:
-        """Between episodes (an episode ended, or the budget is spent): evaluate and checkpoint when due; pause
-        at ``stop_at`` or finish (``state``; ``final_row``)."""
+    def between_episodes(self, stop_at: Optional[int]) -> None:
+        """After a step, between episodes (an episode ended, or the budget is spent): what is due (``eval_due``:
+        an evaluation, which ``drive`` makes, side by side with other runs', into ``evaluated``), and the episodes
+        in flight stored cut when an evaluation or checkpoint is due. ``after_step`` does the rest."""
         c = self.count
+        self._between = None
+        self.eval_due, self.evaluated = False, None
         finished = c.env_steps >= self.cfg.total_steps
         if not (self.ended.any() or finished):
             return
         stopping = stop_at is not None and c.env_steps >= stop_at and not finished
-        eval_due = c.env_steps >= self._next_eval or finished
+        self.eval_due = c.env_steps >= self._next_eval or finished
         ckpt_due = c.env_steps >= self._next_ckpt or finished or stopping
-        if eval_due or ckpt_due:
+        self._between = (finished, stopping, ckpt_due)
+        if self.eval_due or ckpt_due:
             for ep in self.train_eps.cut_in_flight():
                 self._store(ep)
-        if eval_due:
+        if self.eval_due:
             c.wall_time = time.perf_counter() - self._t0
-            row = self._eval_row()
+
+    def after_step(self) -> None:
+        """The rest of ``between_episodes``: the evaluation's row (its metrics in ``evaluated``), the checkpoint
+        when due; pause at ``stop_at`` or finish (``state``; ``final_row``)."""
+        if self._between is None:
+            return
+        c = self.count
+        finished, stopping, ckpt_due = self._between
+        self._between = None
+        if self.eval_due:
+            row = self._eval_row(self.evaluated)
+            self.eval_due, self.evaluated = False, None
             self.bar.set_postfix(success=f"{row['eval_success_rate']:.2f}", ret=f"{row['eval_return']:.1f}")
             self._next_eval = self._next(self.cfg.eval_every)
         if ckpt_due:
@@ -486,19 +543,31 @@ class Trainer:
                                        f"the last good checkpoint is kept in {self.out}")
 
     # ------------------------------------------------------------ evaluation, demonstrations
-    def evaluate(self) -> dict:
-        """Deterministic policy on fixed seeds shared by every run (EVAL_SEED_BASE + i), on the evaluation's own
-        episodes; it resets the simulator, so the training episodes start anew afterwards."""
+    def evaluation(self) -> Generator[np.ndarray, np.ndarray, dict]:
+        """The evaluation's episodes (deterministic policy on fixed seeds shared by every run, EVAL_SEED_BASE + i)
+        as a generator of policy inputs that is sent the actions (``episodes.EnvEpisodes.scores``, on the
+        evaluation's own episodes); returns the metrics. It resets the simulator, so the training episodes
+        start anew afterwards."""
         n, N = self.cfg.eval_episodes, self.spec.num_envs
-        eps: List[Episode] = []
+        scores: List[Score] = []
         for i in range(math.ceil(n / N)):
-            eps += self.eval_eps.rollout(EVAL_SEED_BASE + i * N, lambda x: self.agent.act(x, deterministic=True))
+            scores += yield from self.eval_eps.scores(EVAL_SEED_BASE + i * N)
         self.train_eps.restart()
-        eps = eps[:n]
-        return {"eval_return": float(np.mean([e.reward.sum() for e in eps])),
-                "eval_success_rate": float(np.mean([e.success.any() for e in eps])),
-                "eval_success_at_end": float(np.mean([e.success[-1].any() for e in eps])),
-                "eval_episode_length": float(np.mean([e.length for e in eps]))}
+        scores = scores[:n]
+        return {"eval_return": float(np.mean([e.ret for e in scores])),
+                "eval_success_rate": float(np.mean([e.success for e in scores])),
+                "eval_success_at_end": float(np.mean([e.success_at_end for e in scores])),
+                "eval_episode_length": float(np.mean([e.length for e in scores]))}
+
+    def evaluate(self) -> dict:
+        """This run's evaluation metrics (``evaluation`` driven by the agent's bare deterministic forward)."""
+        gen, act = self.evaluation(), self.agent.deterministic_actor()
+        x = next(gen)
+        while True:
+            try:
+                x = gen.send(act(x))
+            except StopIteration as stop:
+                return stop.value
 
     def _rollout(self, seed: int, policy) -> List[Episode]:
         """Whole episodes of all N envs from one reset, on the evaluation's episodes (tests, demonstrations)."""
@@ -527,9 +596,11 @@ class Trainer:
             if got >= want:
                 break
 
-    def _eval_row(self) -> dict:
+    def _eval_row(self, evaluated: Optional[dict] = None) -> dict:
+        """The evaluation's row (``evaluated``: its metrics, already made; None: evaluate now) and its outputs."""
         c = self.count
-        row = {"env_steps": c.env_steps, **self.evaluate(), "train_episodes": c.episodes,
+        row = {"env_steps": c.env_steps, **(self.evaluate() if evaluated is None else evaluated),
+               "train_episodes": c.episodes,
                "train_successes": c.successes, "updates": c.updates,
                "train_episode_length": round(c.episode_steps_total / max(1, c.episodes), 3),
                "wall_time_s": round(c.wall_time, 2)}

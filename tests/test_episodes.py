@@ -1,6 +1,7 @@
 """Episodes that end on success, per-env episode assembly with N envs, E as the paper defines it,
 relabeled ``done``, and the update schedule."""
 import numpy as np
+import torch
 import pytest
 
 from maniskill_dualher.config import ReplayConfig, RunConfig, SACConfig
@@ -190,3 +191,79 @@ def test_env_episodes_own_clock_and_arrays(tmp_path):
             np.testing.assert_array_equal(ep.action[:, 0], actions[:, i])
     finally:
         env.close()
+
+
+def _steering(x):
+    """A deterministic policy of the point env's input (position | goal) that reaches some goals at different
+    steps and misses others."""
+    p, g = x[:, :2], x[:, 2:]
+    return np.clip((g - p) * 2.5 + np.sin(9.0 * p[:, ::-1]), -1, 1).astype(np.float32)
+
+
+@pytest.mark.parametrize("n, terminate", [(1, True), (3, True), (3, False)])
+def test_scores_are_what_the_rollouts_episodes_give(n, terminate):
+    """EnvEpisodes.scores (evaluation's lean rollout) makes the same env calls as rollout and gives each episode's
+    return (the same numpy float32 sum), success, success at its end and length, episodes ending on success at
+    different steps or running fixed-length."""
+    from maniskill_dualher.envs import make_env
+    from maniskill_dualher.episodes import EnvEpisodes
+    envs = [make_env(point_cfg(n=n)) for _ in range(2)]
+    try:
+        full, lean = EnvEpisodes(envs[0], terminate), EnvEpisodes(envs[1], terminate)
+        seen = {"success": 0, "lengths": set()}
+        for seed in range(0, 40, n):
+            eps = full.rollout(seed, _steering)
+            gen = lean.scores(seed)
+            x = next(gen)
+            try:
+                while True:
+                    x = gen.send(_steering(x))
+            except StopIteration as stop:
+                scores = stop.value
+            for ep, sc in zip(eps, scores):
+                ret = ep.reward.sum()
+                assert type(sc.ret) is type(ret) and sc.ret.tobytes() == ret.tobytes()
+                assert (sc.success, sc.success_at_end, sc.length) == \
+                    (bool(ep.success.any()), bool(ep.success[-1].any()), ep.length)
+                seen["success"] += sc.success
+                seen["lengths"].add(sc.length)
+            assert lean.pending.all() and full.pending.all()
+            np.testing.assert_array_equal(lean.flat, full.flat)
+        u0, u1 = envs[0].unwrapped, envs[1].unwrapped
+        np.testing.assert_array_equal(u0.pos, u1.pos)  # the same steps, in the same envs
+        np.testing.assert_array_equal(u0.resets, u1.resets)
+        assert 0 < seen["success"] < 40 and len(seen["lengths"]) > (1 if terminate else 0)
+    finally:
+        for e in envs:
+            e.close()
+
+
+def test_evaluations_side_by_side_equal_each_alone_and_a_failing_one_fails_alone(tmp_path):
+    """train.evaluate_runs steps several runs' evaluations side by side: each gets what it gets alone
+    (Trainer.evaluate); one whose forward raises is handed to ``fail`` and the others finish."""
+    from maniskill_dualher.train import evaluate_runs
+    runs = []
+    for s in range(3):
+        cfg = point_cfg(n=3)
+        cfg.seed = s
+        t = Trainer(cfg, tmp_path / str(s), show_progress=False)
+        t.agent.actor.net[-1].bias.data[:2] += torch.tensor([2.0, -1.0]) * (s - 1)  # distinct, decisive actors
+        runs.append(t)
+    try:
+        alone = [t.evaluate() for t in runs]
+        assert len({a["eval_episode_length"] for a in alone}) > 1
+        failed = []
+        evaluate_runs(runs, lambda run, e: failed.append(run))
+        assert [t.evaluated for t in runs] == alone and failed == []
+
+        def boom(x):
+            raise RuntimeError("boom")
+        runs[1].agent.deterministic_actor = lambda: boom
+        for t in runs:
+            t.evaluated = None
+        evaluate_runs(runs, lambda run, e: failed.append((run, str(e))))
+        assert failed == [(runs[1], "boom")] and runs[1].evaluated is None
+        assert [runs[0].evaluated, runs[2].evaluated] == [alone[0], alone[2]]
+    finally:
+        for t in runs:
+            t.close()

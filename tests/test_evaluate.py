@@ -38,9 +38,21 @@ def trained(tmp_path_factory):
     agent_actions = t.agent.act(probe, deterministic=True)
     rollouts = [t._rollout(EVAL_SEED_BASE + i, lambda x: t.agent.act(x, deterministic=True))[0]
                 for i in range(cfg.eval_episodes)]
+    evaluated = t.evaluate()
     t.env.close()
     return {"out": out, "cfg": cfg, "final": final, "trainer": t, "probe": probe,
-            "agent_actions": agent_actions, "rollouts": rollouts}
+            "agent_actions": agent_actions, "rollouts": rollouts, "evaluated": evaluated}
+
+
+def test_the_lean_evaluation_gives_the_full_rollouts_metrics(trained):
+    """Trainer.evaluate (lean: scores only, the bare forward) equals the metrics of the full episodes that
+    rollout and agent.act give on the same seeds (ReachTarget: no contact, reproducible across resets)."""
+    eps = trained["rollouts"]
+    assert trained["evaluated"] == {
+        "eval_return": float(np.mean([e.reward.sum() for e in eps])),
+        "eval_success_rate": float(np.mean([e.success.any() for e in eps])),
+        "eval_success_at_end": float(np.mean([e.success[-1].any() for e in eps])),
+        "eval_episode_length": float(np.mean([e.length for e in eps]))}
 
 
 # --------------------------------------------------------------------------- policy files

@@ -110,13 +110,18 @@ def alone(tmp_path_factory):
 
 
 def test_a_run_in_a_pack_matches_it_alone(alone, tmp_path, monkeypatch):
-    batched = []
+    import maniskill_dualher.train as train_mod
+    batched, side_by_side = [], []
     step_pack = FusedUpdate.step_pack
     monkeypatch.setattr(FusedUpdate, "step_pack", lambda self, *a: (batched.append(len(self.sacs)),
                                                                     step_pack(self, *a))[1])
+    evaluate_runs = train_mod.evaluate_runs
+    monkeypatch.setattr(train_mod, "evaluate_runs", lambda runs, fail: (side_by_side.append(len(runs)),
+                                                                        evaluate_runs(runs, fail))[1])
     res = run_pack([Job(_cfg(*c, ckpt=100), str(tmp_path / str(i))) for i, c in enumerate(CFGS)])
     assert [sorted(r) for r in res] == [["row"]] * 3
     assert batched and max(batched) == 3, "all three runs (two tasks, two methods) were updated together"
+    assert max(side_by_side) == 3, "the last evaluations (all at the budget's end) stepped side by side"
     for i in range(len(CFGS)):
         assert _rows(tmp_path / str(i)) == _rows(alone / str(i)), CFGS[i]
         assert _weights(tmp_path / str(i)) == _weights(alone / str(i)), CFGS[i]

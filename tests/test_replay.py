@@ -226,10 +226,15 @@ class _FullDepthSumTree:
         return node - self.P
 
 
+@pytest.mark.parametrize("row_factor", [0, 8, 10**9])
 @pytest.mark.parametrize("cap", [1, 2, 3, 17, 64, 1000, 5000])
-def test_sumtree_subtree_walks_have_full_depth_bits(cap):
+def test_sumtree_subtree_walks_have_full_depth_bits(cap, row_factor, monkeypatch):
     """update and find walk only the subtree of written leaves: the same tree and the same leaves found as
-    walking every level, while the buffer fills and after it wraps, for queries inside and beyond the total."""
+    walking every level, while the buffer fills and after it wraps, for queries inside and beyond the total;
+    whether update recomputes a level node by node (row_factor 0), whole from slices (10**9) or either by its
+    size (the default)."""
+    from maniskill_dualher.replay import sumtree
+    monkeypatch.setattr(sumtree, "ROW_FACTOR", row_factor)
     rng = np.random.default_rng(cap)
     t, ref = SumTree(cap), _FullDepthSumTree(cap)
     high = 0
@@ -246,3 +251,24 @@ def test_sumtree_subtree_walks_have_full_depth_bits(cap):
         assert np.array_equal(t.find(q), ref.find(q))
         if step == 0 and cap > 2:  # a subtree shorter than the tree: a query at the total skips it, to leaf P - 1
             assert t._sub() < t.depth and t.find(np.array([total]))[0] == t.P - 1
+
+
+def test_sumtree_update_recomputes_small_rows_whole_and_keeps_the_bits(monkeypatch):
+    """A big tree, few leaves updated: the low levels go node by node, the top ones whole (the slice path runs:
+    a row node no updated leaf lies under is recomputed to what it held), and the tree equals the full walk."""
+    from maniskill_dualher.replay import sumtree
+    rng = np.random.default_rng(7)
+    t, ref = SumTree(100_000), _FullDepthSumTree(100_000)
+    vals = rng.random(70_000)
+    t.update(np.arange(70_000), vals)
+    ref.update(np.arange(70_000), vals)
+    adds = []
+    real_add = np.add
+    monkeypatch.setattr(sumtree.np, "add", lambda *a, **kw: (adds.append(kw["out"].size), real_add(*a, **kw))[1])
+    for _ in range(20):
+        idx, v = rng.integers(0, 70_000, 16), rng.random(16)
+        t.update(idx, v)
+        ref.update(idx, v)
+    monkeypatch.undo()
+    assert adds and max(adds) <= 8 * 16 < 70_000 // 2  # only rows of at most ROW_FACTOR x 16 nodes went whole
+    assert t.tree.tobytes() == ref.tree.tobytes()

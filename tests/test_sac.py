@@ -87,3 +87,28 @@ def test_acting_draws_the_same_action_as_the_training_sample():
     assert torch.equal(torch.get_rng_state(), after)
     np.testing.assert_array_equal(a_act, a_train.detach().numpy())
     assert not np.array_equal(a_act, agent.act(x.numpy(), deterministic=True))
+
+
+@pytest.mark.parametrize("variant,hidden,precision", [("paper", (32, 32), "highest"), ("modern", (64, 64), "medium"),
+                                                       ("modern", (16, 24, 8), "bf16")])
+def test_the_bare_deterministic_actor_is_act_bit_for_bit(variant, hidden, precision):
+    """SAC.deterministic_actor (evaluation's forward: no module calls, no autograd) gives act(x, deterministic=True)'s
+    bits for one row, a few and a batch, saturating inputs included, before and after an update (its weight views
+    follow the in-place step); the precision switch is restored after it."""
+    g = torch.Generator().manual_seed(5)
+    cfg = SACConfig(variant=variant, hidden=hidden, matmul_precision=precision, batch_size=32)
+    agent = SAC(11, 3, cfg, generator=g, init_generator=g)
+    act = agent.deterministic_actor()
+    rng = np.random.default_rng(0)
+    xs = [rng.normal(size=(m, 11)).astype(np.float32) * s for m, s in ((1, 1.0), (3, 1.0), (256, 1.0), (4, 50.0))]
+    before = torch.get_float32_matmul_precision()
+    for x in xs:
+        want = agent.act(x, deterministic=True)
+        got = act(x)
+        assert got.dtype == np.float32 and got.tobytes() == want.tobytes()
+    assert torch.get_float32_matmul_precision() == before
+    b = Batch(torch.randn(32, 11, generator=g), torch.rand(32, 3, generator=g) * 2 - 1, torch.zeros(32),
+              torch.randn(32, 11, generator=g), torch.zeros(32))
+    old = act(xs[2]).copy()
+    agent.update(b)
+    assert act(xs[2]).tobytes() == agent.act(xs[2], deterministic=True).tobytes() != old.tobytes()

@@ -6,6 +6,10 @@ is always recomputed as ``left + right`` from its children (never by adding delt
 the tree is a pure function of its leaves: no drift, and rebuilding from saved leaves
 reproduces it bit for bit.
 
+``update`` recomputes the touched nodes level by level; where a level of the subtree over leaves [0, high)
+has few nodes (``ROW_FACTOR``), it recomputes that whole row from two strided slices instead: the nodes it
+did not need to touch get the sums they hold, so the tree is the same bit for bit.
+
 Only leaves [0, high) have ever been written (``high``: one past the highest); the rest are 0, and so is
 every node above only them. ``update`` and ``find`` therefore work level by level only inside the subtree
 of 2^sub leaves that holds [0, high) (sub = ceil(log2(high))) and treat its ancestors, the leftmost chain up
@@ -17,6 +21,12 @@ from __future__ import annotations
 import numpy as np
 
 from ..config import ConfigError
+
+
+# A row of at most this many times the updated leaves' count is recomputed whole from strided slices (one
+# numpy call, contiguous memory) rather than gathered and scattered node by node (seven calls); the nodes left
+# alone are recomputed to the same sums, since every node is its children's sum.
+ROW_FACTOR = 8
 
 
 class SumTree:
@@ -58,14 +68,20 @@ class SumTree:
         m = float(values.max())
         if m > self.max_value:
             self.max_value = m
-        self.high = max(self.high, int(leaf.max()) + 1)
+        self.high = high = max(self.high, int(leaf.max()) + 1)
         sub = self._sub()
         node = node >> 1
         left = np.empty_like(node)
-        for _ in range(sub):  # inside the subtree: every touched node, all at once
+        h = 1  # height above the leaves of the nodes in ``node``
+        rows = ROW_FACTOR * len(node)
+        while h <= sub and ((high - 1) >> h) + 1 > rows:  # low in the subtree: every touched node, all at once
             np.left_shift(node, 1, out=left)
             tree[node] = tree[left] + tree[left + 1]
             node >>= 1
+            h += 1
+        for h in range(h, sub + 1):  # higher up, the few nodes over leaves [0, high): the whole row from slices
+            lo, n = self.P >> h, ((high - 1) >> h) + 1
+            np.add(tree[2 * lo:2 * (lo + n):2], tree[2 * lo + 1:2 * (lo + n):2], out=tree[lo:lo + n])
         n = self.P >> sub  # the subtree's root; its ancestors one by one
         while n > 1:
             n >>= 1
