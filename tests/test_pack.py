@@ -112,8 +112,8 @@ def alone(tmp_path_factory):
 def test_a_run_in_a_pack_matches_it_alone(alone, tmp_path, monkeypatch):
     batched = []
     step_pack = FusedUpdate.step_pack
-    monkeypatch.setattr(FusedUpdate, "step_pack", lambda self, *a: (batched.append(len(self.sacs)),
-                                                                    step_pack(self, *a))[1])
+    monkeypatch.setattr(FusedUpdate, "step_pack", lambda self, *a, **kw: (batched.append(len(self.sacs)),
+                                                                          step_pack(self, *a, **kw))[1])
     res = run_pack([Job(_cfg(*c, ckpt=100), str(tmp_path / str(i))) for i, c in enumerate(CFGS)])
     assert [sorted(r) for r in res] == [["row"]] * 3
     assert batched and max(batched) == 3, "all three runs (two tasks, two methods) were updated together"
