@@ -86,7 +86,9 @@ class Updater:
             fused = self.fused[key] = FusedUpdate(agents)
         try:
             with matmul_precision(agents[0].cfg.matmul_precision):
-                tds, logs = fused.step_pack([b for _, b, _, _ in members], [ab for _, _, ab, _ in members])
+                # the losses only when a member logs this update (reading them is per agent and term)
+                tds, logs = fused.step_pack([b for _, b, _, _ in members], [ab for _, _, ab, _ in members],
+                                            want_logs=any(log_now for *_, log_now in members))
         except Exception as e:  # the batched update itself failed: every member of it
             for run, *_ in members:
                 fail(run, e)

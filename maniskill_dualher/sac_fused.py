@@ -24,6 +24,7 @@ import numpy as np
 import torch
 import torch.nn as nn
 import torch.nn.functional as F
+import torch.optim.optimizer as _optimizer
 
 if TYPE_CHECKING:  # pragma: no cover
     from .replay.base import Batch
@@ -60,26 +61,42 @@ class Layers:
         last = len(self.own[0][0]) - 1
         # hidden-to-hidden layers (all but the first and the last) get bf16 inputs when asked
         self.bf16 = [low_precision and 0 < k < last for k in range(last + 1)]
-        self.refresh()
+        # the parameters' detached views, made once: Adam steps them in place, so they always read current
+        self._ws = [[w.detach() for w in o[0]] for o in self.own]
+        self._bs = [[b.detach() for b in o[1]] for o in self.own]
+        self._build(self._ws[0], self._bs[0]) if self.agents == 1 else self.refresh()
 
     def refresh(self) -> None:
-        """This update's weights: the parameters themselves for one agent, stacked copies for a pack."""
-        ws = [[w.detach() for w in o[0]] for o in self.own]
-        bs = [[b.detach() for b in o[1]] for o in self.own]
+        """This update's weights: the parameters themselves for one agent (nothing to do), stacked copies for a
+        pack."""
         if self.agents == 1:
-            self.W, self.B = ws[0], bs[0]
-        else:  # linear: (S, out, in) and (S, out); ensembles: (S * E, in, out) and (S * E, 1, out)
-            join = torch.stack if self.linear else torch.cat
-            self.W = [join([w[k] for w in ws]) for k in range(len(ws[0]))]
-            self.B = [join([b[k] for b in bs]) for k in range(len(bs[0]))]
+            return
+        # linear: (S, out, in) and (S, out); ensembles: (S * E, in, out) and (S * E, 1, out)
+        join = torch.stack if self.linear else torch.cat
+        ws, bs = self._ws, self._bs
+        self._build([join([w[k] for w in ws]) for k in range(len(ws[0]))],
+                    [join([b[k] for b in bs]) for k in range(len(bs[0]))])
 
-    def _wb(self, k: int) -> Tuple[torch.Tensor, torch.Tensor]:
-        w, b = self.W[k], self.B[k]
-        if self.linear:  # the weight's transposed view, as one agent's products read it
-            if self.agents == 1:
-                return w.t().unsqueeze(0), b.view(1, 1, -1)
-            return w.transpose(1, 2), b.unsqueeze(1)
-        return w, b
+    def _build(self, W: List[torch.Tensor], B: List[torch.Tensor]) -> None:
+        """The views of W and B that the products read, made once per set of weights rather than per product:
+        per layer (weight, bias) in the (E, in, out), (E, 1, out) form, the weight's transpose (input
+        gradients), for one member (n = 1) their first rows (2-D products), and for a width-1 output layer its
+        weight vector per member (matrix-vector products)."""
+        self.W, self.B = W, B
+        self.wb = []
+        for w, b in zip(W, B):
+            if self.linear:  # the weight's transposed view, as one agent's products read it
+                if self.agents == 1:
+                    w, b = w.t().unsqueeze(0), b.view(1, 1, -1)
+                else:
+                    w, b = w.transpose(1, 2), b.unsqueeze(1)
+            self.wb.append((w, b))
+        self.wt = [w.transpose(1, 2) for w, _ in self.wb]
+        one = self.n == 1
+        self.w0 = [w[0] if one else None for w, _ in self.wb]
+        self.b0 = [b[0] if one else None for _, b in self.wb]
+        self.wt0 = [w[0] if one else None for w in self.wt]
+        self.cols = [w[..., 0].unbind(0) if w.shape[-1] == 1 else None for w, _ in self.wb]
 
     def forward(self, x: torch.Tensor) -> Tuple[torch.Tensor, List[Tuple[torch.Tensor, Optional[torch.Tensor]]]]:
         """x (B, in), shared by all members, (S, B, in), one per agent, shared by its members, or (E, B, in)
@@ -95,17 +112,19 @@ class Layers:
         h = x
         last = len(self.W) - 1
         for k in range(last + 1):
-            w, b = self._wb(k)
+            w, b = self.wb[k]
             if self.bf16[k]:
                 hb = h.to(torch.bfloat16)
                 inputs.append((h, hb))
                 z = _mm(hb, w.to(torch.bfloat16)).float().add_(b)
             else:
                 inputs.append((h, None))
-                if w.shape[-1] == 1:  # output layer of width 1: matrix-vector products, not a thin bmm
-                    z = _mv(h, w[..., 0]).unsqueeze(-1).add_(b)
+                if self.cols[k] is not None:  # output layer of width 1: matrix-vector products, not a thin bmm
+                    z = _mv(h.unbind(0), self.cols[k]).unsqueeze(-1).add_(b)
+                elif self.w0[k] is not None:
+                    z = torch.addmm(self.b0[k], h[0], self.w0[k]).unsqueeze(0)
                 else:
-                    z = _addmm(b, h, w)
+                    z = torch.baddbmm(b, h, w)
             h = z.relu_() if k < last else z
         return h, inputs
 
@@ -117,7 +136,7 @@ class Layers:
         back = None
         for k in reversed(range(len(self.W))):
             x, xb = inputs[k]
-            w, _ = self._wb(k)
+            w, _ = self.wb[k]
             if xb is not None:  # bf16 layer: both products take bf16 inputs
                 gb, wb = g.to(torch.bfloat16), w.to(torch.bfloat16)
                 if grads is not None:
@@ -130,7 +149,12 @@ class Layers:
                     if input_cols is not None:
                         back = torch.bmm(g, w[:, input_cols, :].transpose(1, 2))
                     break
-                g = g * w.transpose(1, 2) if w.shape[-1] == 1 else _mm(g, w.transpose(1, 2))
+                if w.shape[-1] == 1:
+                    g = g * self.wt[k]
+                elif self.wt0[k] is not None:
+                    g = torch.mm(g[0], self.wt0[k]).unsqueeze(0)
+                else:
+                    g = torch.bmm(g, self.wt[k])
             g = torch.ops.aten.threshold_backward(g, x, 0)  # ReLU': where this layer's input is > 0
         if grads is not None:
             for gw, gbias in reversed(found):
@@ -147,7 +171,7 @@ class Layers:
             gw = torch.bmm(gx.transpose(1, 2), x)
             gbias = g.sum(1)
         elif g.shape[-1] == 1:  # (E, in, 1): x^T g member by member
-            gw = _mv(x.transpose(1, 2), g[..., 0]).unsqueeze(-1)
+            gw = _mv(x.transpose(1, 2).unbind(0), g[..., 0].unbind(0)).unsqueeze(-1)
             gbias = g.sum(1, keepdim=True)
         else:  # (E, in, out): x^T g
             gw = torch.bmm(x.transpose(1, 2), gx)
@@ -159,13 +183,16 @@ def _mm(x: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
     return torch.mm(x[0], w[0]).unsqueeze(0) if x.shape[0] == 1 else torch.bmm(x, w)
 
 
-def _addmm(b: torch.Tensor, x: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
-    return torch.addmm(b[0], x[0], w[0]).unsqueeze(0) if x.shape[0] == 1 else torch.baddbmm(b, x, w)
+def _mv(xs, vs) -> torch.Tensor:
+    """E matrices (B, n) and E vectors (n,) -> (E, B), one matrix-vector product per member."""
+    return torch.stack([torch.mv(x, v) for x, v in zip(xs, vs)])
 
 
-def _mv(x: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
-    """(E, B, n) @ (E, n) -> (E, B), one matrix-vector product per member."""
-    return torch.stack([torch.mv(x[e], v[e]) for e in range(x.shape[0])])
+def _stack(ts: List[torch.Tensor]) -> torch.Tensor:
+    """``torch.stack(ts)``; for one contiguous tensor the same layout as a view, without the copy."""
+    if len(ts) == 1 and ts[0].is_contiguous():
+        return ts[0].unsqueeze(0)
+    return torch.stack(ts)
 
 
 class FusedUpdate:
@@ -204,6 +231,7 @@ class FusedUpdate:
         self.params = self.params_of[0]
         # per agent, which of its parameters a critic-only batch leaves without a step (actor, log alpha)
         self.policy_ids = [{id(p) for p in s.policy_parameters()} for s in self.sacs]
+        self._plans: List[Optional[tuple]] = [None] * len(self.sacs)  # per agent, _adam_plan's cache
         self.compute = self._compute
         if sac.cfg.compile:  # compute draws nothing (``draws`` are made outside it): nothing random to compile
             self.compute = torch.compile(self._compute, dynamic=False)
@@ -315,17 +343,78 @@ class FusedUpdate:
             terms["losses/alpha_loss"] = -(log_alpha.unsqueeze(-1) * (logp_pi + sac.target_entropy)).mean(-1)
         return grads, td.abs().sum(1), terms
 
-    def _step(self, i: int, grads: List[torch.Tensor], critic_only: bool = False) -> None:
-        """Agent i's share of the gradients into its parameters; its Adam step and Polyak average."""
-        sac = self.sacs[i]
-        for p, g, rows in zip(self.params_of[i], grads, self.rows):
-            if len(self.sacs) > 1:
-                g = g[i] if rows <= 1 else g[i * rows:(i + 1) * rows]
+    def _apply(self, grads: List[torch.Tensor], critic_only: List[bool]) -> None:
+        """Each agent's share of the stacked gradients into its parameters (``.grad``), then every agent's Adam
+        step and Polyak average, as ``optimizer.step()`` and one ``_foreach_lerp_`` per agent would make them.
+
+        Why not ``optimizer.step()``: its Python (hooks, ``_init_group``'s per-parameter state walk, grouping)
+        cost more than the fused kernel itself at 64x64. Here each agent's optimizer state is looked up once
+        (``_adam_plan``) and the whole pack's parameters go through one ``_fused_adam_`` call per distinct set
+        of hyperparameters (``tests/test_sac_fused.py``: bit for bit the same as ``optimizer.step()``);
+        anything the plan does not cover (first steps, hooks, other optimizer settings) takes that path."""
+        n = len(self.sacs)
+        if n == 1:
+            per_agent = [grads]
+        else:  # one split per parameter, not one slice per parameter and agent
+            cols = [g.unbind(0) if rows <= 1 else g.split(rows) for g, rows in zip(grads, self.rows)]
+            per_agent = [[c[i] for c in cols] for i in range(n)]
+        fused: Dict[tuple, List[List[torch.Tensor]]] = {}
+        polyak: Dict[float, Tuple[List[torch.Tensor], List[torch.Tensor]]] = {}
+        for i, sac in enumerate(self.sacs):
+            params, policy = self.params_of[i], self.policy_ids[i]
             # Adam skips a parameter without a gradient: a critic-only batch moves no actor or alpha
-            p.grad = None if critic_only and id(p) in self.policy_ids[i] else g
-        sac.optimizer.step()
-        torch._foreach_lerp_(sac._target_params, sac._online_params, sac.cfg.tau)
-        sac._n_updates += 1
+            skip = critic_only[i]
+            for p, g in zip(params, per_agent[i]):
+                p.grad = None if skip and id(p) in policy else g
+            plan = self._adam_plan(i)
+            if plan is None:
+                sac.optimizer.step()
+            else:
+                key, state = plan
+                lists = fused.setdefault(key, [[], [], [], [], []])
+                for p, g, st in zip(params, per_agent[i], state):
+                    if skip and id(p) in policy:
+                        continue
+                    for out, t in zip(lists, (p, g, st["exp_avg"], st["exp_avg_sq"], st["step"])):
+                        out.append(t)
+            tgt, onl = polyak.setdefault(sac.cfg.tau, ([], []))
+            tgt += sac._target_params
+            onl += sac._online_params
+            sac._n_updates += 1
+        for (lr, beta1, beta2, weight_decay, eps, maximize), (ps, gs, ms, vs, steps) in fused.items():
+            torch._foreach_add_(steps, 1)  # as torch.optim.adam._fused_adam does, then its kernel
+            torch._fused_adam_(ps, gs, ms, vs, [], steps, amsgrad=False, lr=lr, beta1=beta1, beta2=beta2,
+                               weight_decay=weight_decay, eps=eps, maximize=maximize, grad_scale=None,
+                               found_inf=None)
+        for tau, (tgt, onl) in polyak.items():
+            torch._foreach_lerp_(tgt, onl, tau)
+
+    def _adam_plan(self, i: int) -> Optional[Tuple[tuple, List[dict]]]:
+        """(hyperparameters, state of each of ``params_of[i]``) when agent i's optimizer step is exactly one
+        ``_fused_adam_`` call over them, else None. The state list is cached per optimizer and state dict
+        (``load_state_dict`` replaces the latter); the settings are read at every step."""
+        opt = self.sacs[i].optimizer
+        if (len(opt.param_groups) != 1 or opt._optimizer_step_pre_hooks or opt._optimizer_step_post_hooks
+                or _optimizer._global_optimizer_pre_hooks or _optimizer._global_optimizer_post_hooks
+                or getattr(opt, "grad_scale", None) is not None or getattr(opt, "found_inf", None) is not None):
+            return None
+        group = opt.param_groups[0]
+        if (type(opt) is not torch.optim.Adam or not group.get("fused") or group["amsgrad"]
+                or group["capturable"] or group["differentiable"] or group.get("decoupled_weight_decay", False)
+                or isinstance(group["lr"], torch.Tensor)):
+            return None
+        cached = self._plans[i]
+        if cached is None or cached[0] is not opt or cached[1] is not opt.state:
+            self._plans[i] = None
+            if len(group["params"]) != len(self.params_of[i]) \
+                    or {id(p) for p in group["params"]} != {id(p) for p in self.params_of[i]}:
+                return None
+            state = [opt.state.get(p) for p in self.params_of[i]]
+            if any(not st or not {"step", "exp_avg", "exp_avg_sq"} <= st.keys() for st in state):
+                return None  # not stepped yet: optimizer.step() makes the state
+            cached = self._plans[i] = (opt, opt.state, state)
+        beta1, beta2 = group["betas"]
+        return (group["lr"], beta1, beta2, group["weight_decay"], group["eps"], group["maximize"]), cached[2]
 
     def draw(self, i: int, shapes: List[Tuple[int, int]]) -> List[torch.Tensor]:
         """Agent i's standard-normal draws of these shapes, from its own generator (``SAC.generator``)."""
@@ -337,7 +426,7 @@ class FusedUpdate:
         outside ``compute``, so a compiled ``compute`` draws nothing (the same numbers as drawing inside)."""
         shapes = self.draw_shapes(n_critic, n_pi, self.sac.act_dim, separate)
         per_agent = [self.draw(i, shapes) for i in range(len(self.sacs))]
-        return [torch.stack([d[j] for d in per_agent]) for j in range(len(shapes))]
+        return [_stack([d[j] for d in per_agent]) for j in range(len(shapes))]
 
     @torch.no_grad()
     def __call__(self, batch: "Batch", actor_batch: Optional["Batch"],
@@ -352,20 +441,22 @@ class FusedUpdate:
         """One update of every agent of the pack, agent i on ``batches[i]`` with draws from its own generator
         (a run's draws do not depend on its pack). -> (|TD| per agent, loss terms per agent ({} unless
         ``want_logs``: reading them syncs the device))."""
-        stack = lambda name, bs: torch.stack([getattr(b, name) for b in bs])  # noqa: E731
+        stack = lambda name, bs: _stack([getattr(b, name) for b in bs])  # noqa: E731
         separate = actor_batches[0] is not None
         pi_obs = stack("obs", actor_batches) if separate else None
         w = None if batches[0].weights is None else stack("weights", batches)
         obs = stack("obs", batches)
         n_pi = obs.shape[1] if pi_obs is None else pi_obs.shape[1]
         eps = self.draws(obs.shape[1], n_pi, separate)
-        log_alpha = torch.stack([s.log_alpha.detach() for s in self.sacs])
+        log_alpha = _stack([s.log_alpha.detach() for s in self.sacs])
         grads, td_abs, terms = self.compute(obs, stack("action", batches), stack("reward", batches),
                                             stack("next_obs", batches), stack("done", batches), w, pi_obs,
                                             log_alpha, eps)
-        for i in range(len(self.sacs)):
-            self._step(i, grads, batches[i].critic_only)
+        self._apply(grads, [b.critic_only for b in batches])
         td = td_abs.cpu().numpy()
         n = len(self.sacs)
-        logs = [{k: float(v[i]) for k, v in terms.items()} if want_logs else {} for i in range(n)]
-        return [td[i] for i in range(n)], logs
+        if not want_logs:
+            return [td[i] for i in range(n)], [{} for _ in range(n)]
+        values = {k: v.tolist() for k, v in terms.items()}  # one read per term, not per term and agent
+        return [td[i] for i in range(n)], [{k: v[i] for k, v in values.items()} for i in range(n)]
+

@@ -113,8 +113,8 @@ def test_a_run_in_a_pack_matches_it_alone(alone, tmp_path, monkeypatch):
     import maniskill_dualher.train as train_mod
     batched, side_by_side = [], []
     step_pack = FusedUpdate.step_pack
-    monkeypatch.setattr(FusedUpdate, "step_pack", lambda self, *a: (batched.append(len(self.sacs)),
-                                                                    step_pack(self, *a))[1])
+    monkeypatch.setattr(FusedUpdate, "step_pack", lambda self, *a, **kw: (batched.append(len(self.sacs)),
+                                                                          step_pack(self, *a, **kw))[1])
     evaluate_runs = train_mod.evaluate_runs
     monkeypatch.setattr(train_mod, "evaluate_runs", lambda runs, fail: (side_by_side.append(len(runs)),
                                                                         evaluate_runs(runs, fail))[1])

@@ -188,3 +188,69 @@ def test_fastest_settings_solve_the_tasks_at_256x256(tmp_path, task):
     run_training(cfg, tmp_path / task, show_progress=False)
     rows = read_rows(tmp_path / task / "metrics.csv")
     assert max(float(r["eval_success_rate"]) for r in rows) >= 0.9
+
+
+def _opt_state(agent):
+    return [t for st in agent.optimizer.state_dict()["state"].values() for _, t in sorted(st.items())]
+
+
+@pytest.mark.parametrize("variant", ["modern", "paper"])
+def test_one_fused_adam_call_steps_a_pack_as_optimizer_step_does(variant, monkeypatch):
+    """FusedUpdate._apply runs every agent's Adam as one _fused_adam_ call: bit for bit what each agent's own
+    optimizer.step() gives (the path it replaces), through the first steps (no optimizer state yet), critic-only
+    batches (no actor or alpha step), per-agent lr and tau, an lr changed and an optimizer state loaded midway."""
+    from maniskill_dualher.sac_fused import FusedUpdate
+    cfg = SACConfig(variant=variant, hidden=(16, 16), batch_size=32, learn_alpha=True)
+
+    def pack():
+        agents = []
+        for s in range(3):
+            g = torch.Generator().manual_seed(s)
+            c = dataclasses.replace(cfg, lr=1e-3 * (1 + s % 2), tau=0.05 if s else 0.01)
+            agents.append(SAC(D, A, c, generator=g, init_generator=g))
+        return agents, FusedUpdate(agents)
+
+    fast, fast_update = pack()
+    ref, ref_update = pack()
+    ref_update._adam_plan = lambda i: None  # every agent through its optimizer.step(), as before
+    steps, fast_steps = [], 0
+    real_step = torch.optim.Adam.step
+    monkeypatch.setattr(torch.optim.Adam, "step", lambda self, *a, **k: steps.append(1) or real_step(self, *a, **k))
+    for k in range(6):
+        batches = [make_batch(10 * k + s, weights=True) for s in range(3)]
+        for s, b in enumerate(batches):
+            b.critic_only = (k + s) % 3 == 0  # agent 0 starts critic-only: its actor has no state at first
+        if k == 3:
+            for agents in (fast, ref):
+                agents[1].optimizer.param_groups[0]["lr"] = 5e-4
+                agents[2].optimizer.load_state_dict(copy.deepcopy(agents[2].optimizer.state_dict()))
+        ref_update.step_pack(batches, [None] * 3, want_logs=False)
+        before = len(steps)
+        fast_update.step_pack(batches, [None] * 3, want_logs=False)
+        fast_steps += len(steps) - before
+    for a, b in zip(fast, ref):
+        assert all(torch.equal(p, q) for p, q in zip(a.state_dict().values(), b.state_dict().values()))
+        assert all(torch.equal(p, q) for p, q in zip(_opt_state(a), _opt_state(b)))
+        assert a._n_updates == b._n_updates == 6
+    assert fast[0].actor.net[0].weight.grad is not None  # .grad is still set, as optimizer.step() leaves it
+    # optimizer.step() only where the one call cannot stand in: before an agent's state exists, after a reload
+    assert len(steps) - fast_steps == 18 and 0 < fast_steps <= 5
+
+
+def test_a_fused_update_reads_weights_and_optimizer_state_loaded_after_it_was_built():
+    """One agent's fused update keeps views of its parameters and its optimizer's state from one update to the
+    next; a state loaded in between (resume) must be what the next update reads."""
+    make = lambda seed: SAC(D, A, SACConfig(variant="modern", batch_size=B, hidden=(32, 32)),  # noqa: E731
+                            generator=torch.Generator().manual_seed(seed),
+                            init_generator=torch.Generator().manual_seed(seed))
+    src, dst = make(0), make(1)
+    for step in range(3):
+        src.update(make_batch(step))
+        dst.update(make_batch(50 + step))
+    dst.load_full_state(copy.deepcopy(src.full_state()))
+    dst.generator.set_state(src.generator.get_state())
+    for step in range(3, 5):
+        src.update(make_batch(step))
+        dst.update(make_batch(step))
+    assert all(torch.equal(p, q) for p, q in zip(src.state_dict().values(), dst.state_dict().values()))
+    assert all(torch.equal(p, q) for p, q in zip(_opt_state(src), _opt_state(dst)))
