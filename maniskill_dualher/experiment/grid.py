@@ -49,7 +49,7 @@ class Node:
         return p
 
 
-def _selected(d: dict):
+def selected_arms(d: dict):
     """(experiment, arm) of every arm the definition selects (``NAME:ARM+ARM`` selects some arms)."""
     for item in d["experiments"]:
         exp_name, _, only = item.partition(":")
@@ -83,7 +83,7 @@ def seed_plan(d: dict) -> List[Tuple[str, str, int, int]]:
     key's method or task ("" for the whole arm), seeds planned, seeds the definition lists for its kind)."""
     out = []
     table = d.get("arm_seeds")
-    for exp, arm in _selected(d):
+    for exp, arm in selected_arms(d):
         asked = len(d["seeds"] if exp.kind == "single" else d["chain_seeds"])
         groups: Dict[str, int] = {}
         for m, t in _arm_cells(d, exp, arm):

@@ -24,7 +24,7 @@ from ..config import TASKS, ConfigError
 from ..methods import METHOD_SPECS
 from ..rundir import RUNS_DIR, SWEEP
 from . import overrides
-from .grid import Node, build_grid, capped_arms, seed_plan
+from .grid import Node, build_grid, capped_arms, seed_plan, selected_arms
 from .presets import PRESETS, preset
 from .registry import EXPERIMENTS, ablation_experiments, default_experiments
 
@@ -124,9 +124,7 @@ def definition_from_args(a: argparse.Namespace) -> dict:
     if p.arm_seeds is not None and a.seeds is None and a.chain_seeds is None:
         # the preset's seed table decides each arm's seeds; only the selected arms' keys, so editing another
         # arm's entry leaves this sweep's definition (and its out folder) as it was
-        arms = {f"{x.split(':')[0]}:{arm.name}" for x in d["experiments"]
-                for arm in EXPERIMENTS[x.split(":")[0]].arms
-                if ":" not in x or arm.name in x.partition(":")[2].split("+")}
+        arms = {f"{exp.name}:{arm.name}" for exp, arm in selected_arms(d)}
         d["arm_seeds"] = {k: n for k, n in p.arm_seeds.items() if ":".join(k.split(":")[:2]) in arms}
     for name in (x.split(":")[0] for x in d["experiments"]):
         e = EXPERIMENTS[name]
