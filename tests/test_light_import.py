@@ -60,3 +60,17 @@ def test_the_experiment_layer_imports_no_train_cli_or_analysis():
     bad = [(f.name, m) for f in sorted((REPO / "maniskill_dualher" / "experiment").glob("*.py"))
            for m in _imports(f) if m and m.startswith(banned)]
     assert bad == []
+
+
+def test_hyperparameters_of_a_results_folder_are_built_without_torch(tmp_path):
+    """hyperparameters.csv comes from sweep.json through the grid's configs: that path loads no torch either
+    (RunConfig.validate on device cpu), so `report results/reference` runs where torch is absent."""
+    code = ("import json; from pathlib import Path; from maniskill_dualher.analysis import hyperparameters as h; "
+            "from maniskill_dualher.analysis.runs import read_rows; from maniskill_dualher.fileio import csv_text; "
+            f"f = Path({str(REPO / 'results' / 'reference')!r}); "
+            "rows = h.hyperparameter_rows(h.cell_configs(json.loads((f / 'sweep.json').read_text()), "
+            "read_rows(f / 'scores.csv'))); "
+            "print(csv_text(rows, h.COLUMNS) == (f / 'hyperparameters.csv').read_text())")
+    p = _run_blocked(tmp_path, code)
+    assert p.returncode == 0, p.stderr[-2000:]
+    assert p.stdout.strip() == "True"

@@ -233,14 +233,69 @@ def test_reference_curves_are_overlaid(folder, tmp_path, monkeypatch):
     assert report.main([str(folder), "--reference", str(tmp_path / "nope")]) == 2
 
 
+def _smoke_definition() -> dict:
+    from maniskill_dualher.experiment import sweep
+    return sweep.definition_from_args(sweep.make_parser().parse_args(["--preset", "smoke"]))
+
+
 def test_hyperparameters_put_ours_beside_table3_per_stage(folder):
+    """From the sweep's definition (sweep.json) and the cells in scores.csv, through the grid's configs."""
+    runs = sorted(str(p.parent.relative_to(folder)) for p in folder.rglob("config.json"))
+    (folder / "sweep.json").write_text(json.dumps({**_smoke_definition(), "runs": runs}))
     report.build_report(folder)
     hp = {r["hyperparameter"]: r for r in _table(folder / "hyperparameters.csv")}
-    assert hp["learning rate"]["paper"] == "0.0001" and hp["batch size"]["ours_single_task"] == "256"
-    assert hp["dual buffer sampling ratio P(R)/P(E)"]["ours_adaptation"] == "0.5/0.5; 0.6/0.4"
+    assert hp["learning rate"]["paper"] == "0.0001" and hp["batch size"]["ours_single_task"] == "32"
+    assert hp["dual buffer sampling ratio P(R)/P(E)"]["ours_adaptation"] == "0.6/0.4; 0.5/0.5 (ratios/0.5/0.5)"
     assert hp["SAC entropy temperature alpha"]["ours_adaptation"].startswith("carried from the previous stage")
     assert hp["SAC entropy temperature alpha"]["ours_source_stages"].startswith("0.005")
     assert hp["optimizer at the start"]["ours_adaptation"] == "fresh Adam (not carried)"
+    assert hp["HER goals per transition k"]["ours_single_task"] == "4"    # a single-task run's, not a chain's
+    assert hp["env steps per run"]["ours_single_task"] == "CloseBox-v1: 200"
+
+
+def test_an_arms_override_is_tagged_with_the_arm():
+    """A value no paper-treatment arm uses is tagged with the arms that set it; the paper arm's stays plain."""
+    from maniskill_dualher.analysis import hyperparameters
+    cells = [{"experiment": e, "arm": a, "method": "dual_buffer", "task": t, "stage": s}
+             for e, a in (("transfer", "paper"), ("warm_start", "warm_low_lr"), ("e_share", "r_starved"))
+             for s, t in enumerate(TASKS)]
+    hp = {r["hyperparameter"]: r for r in hyperparameters.hyperparameter_rows(
+        hyperparameters.cell_configs(_smoke_definition(), cells))}
+    assert hp["learning rate"]["ours_adaptation"] == "0.0001; 0.0003 (warm_start/warm_low_lr)"  # smoke: lr default
+    assert hp["learning rate"]["ours_source_stages"] == "0.0001"                  # adaptation-only arms
+    assert hp["gradient update schedule"]["ours_adaptation"] == "1 per env step; 0.6 per env step (e_share/r_starved)"
+    assert hp["random-action steps"]["ours_adaptation"] == "100; 0 (warm_start/warm_low_lr)"
+    assert hp["env steps per run"]["ours_single_task"] == ""                     # no single-task cell asked
+
+
+def test_reference_hyperparameters_are_rebuilt_from_its_csvs_and_sweep_json():
+    """results/reference has no run folders: its hyperparameters.csv comes from sweep.json, scores.csv and the
+    registry, byte for byte; every role's column is filled, the single-task one included."""
+    from maniskill_dualher.analysis import hyperparameters
+    from maniskill_dualher.analysis.runs import read_rows
+    from maniskill_dualher.fileio import csv_text
+    ref = Path(__file__).resolve().parents[1] / "results" / "reference"
+    rows = hyperparameters.hyperparameter_rows(hyperparameters.cell_configs(
+        json.loads((ref / "sweep.json").read_text()), read_rows(ref / "scores.csv")))
+    assert csv_text(rows, hyperparameters.COLUMNS) == (ref / "hyperparameters.csv").read_text()
+    hp = {r["hyperparameter"]: r for r in rows}
+    assert hp["learning rate"]["ours_single_task"] == "0.001"
+    assert "0.0003 (warm_start/warm_low_lr)" in hp["learning rate"]["ours_adaptation"]
+    assert "episode (her_episode/her_episode)" in hp["HER goal strategy"]["ours_source_stages"]
+    assert all(r[c] for r in rows for c in ("ours_source_stages", "ours_adaptation"))
+
+
+def test_reference_folder_is_rebuilt_byte_identically_from_its_csvs(tmp_path):
+    """`python -m maniskill_dualher.report results/reference` rewrites every file of the committed folder as
+    it is (tables, claims, figures, hyperparameters.csv, summary.md)."""
+    ref = Path(__file__).resolve().parents[1] / "results" / "reference"
+    copy = tmp_path / "reference"   # summary.md names its folder
+    shutil.copytree(ref, copy)
+    assert report.main([str(copy)]) == 0
+    differ = [p.name for p in ref.rglob("*") if p.is_file()
+              and p.read_bytes() != (copy / p.relative_to(ref)).read_bytes()]
+    assert differ == []
+    assert sorted(p.name for p in copy.rglob("*")) == sorted(p.name for p in ref.rglob("*"))
 
 
 def test_plots_are_written(folder):
@@ -281,7 +336,8 @@ def _shipped(src: Path, dst: Path, sweep: dict) -> Path:
 
 
 SWEEP = {"preset": "reference", "budgets": {"single": {"CloseBox-v1": 200}, "source": {"CloseBox-v1": 300},
-                                            "adapt": {"CloseMicrowave-v1": 300}}, "preset_settings": [], "settings": [],
+                                            "adapt": {"CloseMicrowave-v1": 300}, "default": 300},
+         "preset_settings": [], "settings": [],
          "task_order": list(TASKS), "carry_replay": True}
 
 

@@ -563,3 +563,74 @@ def test_capped_arms_are_named_and_an_explicit_request_beyond_a_cap_is_refused(t
     lines = capsys.readouterr().out.splitlines()
     assert f"capped: {name}/{arm} runs {cap} of the {cap + 1} seeds asked (max_seeds)" in lines
     assert "--allow-capped" in sweep.make_parser().format_help()
+
+
+# ----------------------------------------------------------------------------- the reference's seed table
+def _definition(*argv):
+    return sweep.definition_from_args(sweep.make_parser().parse_args(list(argv)))
+
+
+def test_the_reference_plan_is_exactly_the_cells_of_results_reference():
+    """`sweep --preset reference --experiments all` plans the (experiment, arm, method, task, seed, stage) cells of
+    results/reference/scores.csv, no more and no fewer: presets.REFERENCE_SEEDS and the committed results cannot
+    drift apart (add seeds to the reference, then edit the table)."""
+    key = ("experiment", "arm", "method", "task", "seed", "stage")
+    d = _definition("--preset", "reference", "--experiments", "all")
+    planned = {tuple(str(c[k]) for k in key) for n in build_grid(d) for c in n.cells}
+    with open(REPO / "results" / "reference" / "scores.csv", newline="") as f:
+        have = {tuple(r[k] for k in key) for r in csv.DictReader(f)}
+    assert sorted(planned - have)[:5] == [] and sorted(have - planned)[:5] == []
+    from maniskill_dualher.analysis.report import MERGE_SAME   # the same budgets and settings as the reference
+    ref = json.loads((REPO / "results" / "reference" / "sweep.json").read_text())
+    assert {k: d[k] for k in MERGE_SAME} == {k: ref[k] for k in MERGE_SAME}
+
+
+def test_the_seed_table_names_every_arm_and_only_real_cells():
+    from maniskill_dualher.config import TASKS
+    from maniskill_dualher.experiment.presets import REFERENCE_SEEDS
+    from maniskill_dualher.experiment.registry import EXPERIMENTS
+    arms = {f"{e.name}:{a.name}" for e in EXPERIMENTS.values() for a in e.arms}
+    assert arms <= {":".join(k.split(":")[:2]) for k in REFERENCE_SEEDS}, "an arm without seeds in the table"
+    for k, n in REFERENCE_SEEDS.items():
+        exp, arm, *rest = k.split(":")
+        assert f"{exp}:{arm}" in arms and isinstance(n, int) and n >= 0, k
+        assert not rest or (len(rest) == 1 and rest[0] in set(EXPERIMENTS[exp].method_names()) | set(TASKS)), k
+
+
+def test_the_seed_table_decides_by_default_and_explicit_seeds_drop_it(tmp_path, capsys):
+    """--preset reference alone: the table (over max_seeds, per method/task where it says so); --seeds or
+    --chain-seeds: the table is dropped and the caps apply, a request beyond one refused in one line, exit 2."""
+    from maniskill_dualher.experiment.grid import seeds_for
+    from maniskill_dualher.experiment.presets import REFERENCE_SEEDS
+    from maniskill_dualher.experiment.registry import EXPERIMENTS
+    exp = EXPERIMENTS["her_episode"]          # max_seeds 8, 32 seeds in the reference
+    arm = exp.arm("her_episode")
+    d = _definition("--preset", "reference", "--experiments", "her_episode")
+    assert set(d["arm_seeds"]) == {"her_episode:paper", "her_episode:her_episode"}  # only the selected arms' keys
+    assert seeds_for(d, exp, arm, "dual_buffer", "CloseMicrowave-v1") == list(range(REFERENCE_SEEDS["her_episode:her_episode"]))
+    assert REFERENCE_SEEDS["her_episode:her_episode"] > exp.max_seeds
+    single = EXPERIMENTS["single"]
+    ds = _definition("--preset", "reference", "--experiments", "single")
+    counts = {(m, t): len(seeds_for(ds, single, single.arm("paper"), m, t)) for m in ("sac", "sac_her_per")
+              for t in ("ReachTarget-v1", "CloseBox-v1")}
+    assert counts == {("sac", "ReachTarget-v1"): REFERENCE_SEEDS["single:paper:ReachTarget-v1"],
+                      ("sac", "CloseBox-v1"): REFERENCE_SEEDS["single:paper:CloseBox-v1"],
+                      ("sac_her_per", "ReachTarget-v1"): 0, ("sac_her_per", "CloseBox-v1"): 0}
+    for flag in ("--seeds", "--chain-seeds"):
+        d2 = _definition("--preset", "reference", "--experiments", "her_episode", flag, "4")
+        assert "arm_seeds" not in d2 and seeds_for(d2, exp, arm, "dual_buffer", "CloseMicrowave-v1") == [0, 1, 2, 3]
+    out = tmp_path / "o"
+    base = ["--preset", "reference", "--experiments", "her_episode", "--out", str(out), "--dry-run"]
+    capsys.readouterr()
+    assert run_sweep([*base, "--chain-seeds", "9"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: her_episode/paper runs at most 8 seeds, 9 asked"), err
+    assert not out.exists()
+    # the table: every arm gets a seeds: line saying what it plans and whether it is capped
+    assert run_sweep(base) == 0
+    lines = capsys.readouterr().out.splitlines()
+    n = REFERENCE_SEEDS["her_episode:her_episode"]
+    assert f"seeds: her_episode/her_episode: {n} (0-{n - 1}) [seed table]" in lines
+    assert "seeds: her_episode/paper: 0, capped: the preset lists 16 [seed table]" in lines
+    assert "capped: her_episode/paper runs 0 of the preset's 16 seeds (seed table): not in results/reference" in lines
+    assert any(ln.startswith("cost: ") for ln in lines) and not out.exists()

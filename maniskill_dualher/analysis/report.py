@@ -1,5 +1,5 @@
 """The report: scores.csv and curves.csv from run folders, then every table, claim, figure and summary.md
-from those two files alone.
+from those two files alone (hyperparameters.csv from them and the sweep's definition, ``hyperparameters.py``).
 
     python -m maniskill_dualher.report runs/quick                       # a sweep folder with its runs
     python -m maniskill_dualher.report results/reference                # a committed folder: from its scores
@@ -29,50 +29,13 @@ from ..fileio import atomic_write_text, csv_text, fmt
 from . import budget as budget_mod
 from . import diagnostics as diagnostics_mod
 from . import claims as claims_mod
-from . import plots, plots_budget, stats
-from .paper import PAPER_ADAPT_BUDGET, PAPER_ADAPT_STEPS, PAPER_TABLE3
-from .runs import (CURVE_COLUMNS, METRICS, SCORE_COLUMNS, Run, curve_key, curve_rows, load_runs, read_rows,
+from . import hyperparameters, plots, plots_budget, stats
+from .paper import PAPER_ADAPT_BUDGET, PAPER_ADAPT_STEPS
+from .runs import (CURVE_COLUMNS, METRICS, SCORE_COLUMNS, curve_key, curve_rows, load_runs, read_rows,
                    score_key, score_rows, unique_rows)
 from .tables import TABLE_COLUMNS, build_tables
 
 SCORES, CURVES = "scores.csv", "curves.csv"
-
-
-def hyperparameter_rows(runs: List[Run]) -> List[dict]:
-    """The paper's Table 3 beside the values our runs used, per role (single-task, source stage, adaptation)."""
-    by_role: Dict[str, list] = {"single": [], "source": [], "adapt": []}
-    for r in sorted(runs, key=lambda r: r.rel):
-        for role in {c["role"] for c in r.cells}:
-            by_role.setdefault(role, []).append((r, min(c["stage"] for c in r.cells if c["role"] == role)))
-
-    def values(items, get):
-        seen: List[str] = []
-        for r, stage in items:
-            v = get(r.cfg, stage)
-            if v is not None and str(v) not in seen:
-                seen.append(str(v))
-        return "; ".join(seen)
-
-    def alpha(c, stage):
-        learned = "learned" if c.sac.resolved_learn_alpha() else "fixed"
-        return f"{c.sac.alpha} ({learned})" if stage == 0 else f"carried from the previous stage ({learned})"
-
-    table = [(name, paper, (lambda c, s, g=get: g(c))) for name, paper, get in PAPER_TABLE3]
-    table = [(n, p, alpha if n.startswith("SAC entropy") else g) for n, p, g in table]
-    table += [
-        ("networks at the start", "the previous stage's (transfer)",
-         lambda c, s: "random init" if s == 0 else "the previous stage's final networks"),
-        ("optimizer at the start", "not stated", lambda c, s: "fresh Adam" if s == 0 else "fresh Adam (not carried)"),
-        ("replay at the start", "not stated", lambda c, s: "empty" if s == 0 else "the previous stage's, carried"),
-        ("dual buffer: E carried into this stage", "not stated",
-         lambda c, s: None if c.method != "dual_buffer" or s == 0 else c.replay.carry_success_buffer),
-        ("learning starts (env steps)", "not stated", lambda c, s: c.sac.learning_starts),
-        ("evaluation at env step 0", "no", lambda c, s: c.eval_at_start),
-    ]
-    return [{"hyperparameter": name, "paper": paper,
-             "ours_single_task": values(by_role.get("single", []), get),
-             "ours_source_stages": values(by_role.get("source", []), get),
-             "ours_adaptation": values(by_role.get("adapt", []), get)} for name, paper, get in table]
 
 
 def _g(v) -> str:
@@ -271,13 +234,17 @@ def build_report(folder, resamples: int = 10_000, reference: Optional[Path] = No
                                   f"(e.g. {missing[0]}); refusing to replace it with less")
         atomic_write_text(folder / SCORES, csv_text(new_scores, SCORE_COLUMNS))
         atomic_write_text(folder / CURVES, csv_text(curve_rows(runs), CURVE_COLUMNS))
-        atomic_write_text(folder / "hyperparameters.csv", csv_text(hyperparameter_rows(runs)))
-        written += [folder / SCORES, folder / CURVES, folder / "hyperparameters.csv"]
+        written += [folder / SCORES, folder / CURVES]
     elif old_scores is None or not (folder / CURVES).is_file():
         raise ConfigError(f"{folder} holds no finished runs and no {SCORES}/{CURVES}: nothing to report "
                           f"({len(unfinished)} unfinished runs)")
     # everything below reads the two files back, so a rebuild without run folders is byte-identical
     scores, curves = _read_unique(folder, written)
+    sweep = rundir.read_sweep(folder)
+    if sweep:  # from the definition and the registry, so a folder without run folders gets it too
+        hp = hyperparameters.hyperparameter_rows(hyperparameters.cell_configs(sweep, scores))
+        atomic_write_text(folder / "hyperparameters.csv", csv_text(hp, hyperparameters.COLUMNS))
+        written.append(folder / "hyperparameters.csv")
     ref_curves = None
     if reference is not None:
         if not (Path(reference) / CURVES).is_file():

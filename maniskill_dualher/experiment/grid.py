@@ -23,8 +23,8 @@ from ..config import RunConfig
 from ..methods import method_spec
 from ..rundir import RUNS_DIR
 from . import overrides, protocol
-from .presets import HER_K_MULTITASK, Preset
-from .registry import Experiment, experiment
+from .presets import HER_K_MULTITASK, Preset, seed_key
+from .registry import Arm, Experiment, experiment
 
 
 @dataclass
@@ -49,21 +49,56 @@ class Node:
         return p
 
 
-def capped_arms(d: dict) -> List[Tuple[str, int, int]]:
-    """The selected arms that run fewer seeds than the definition asks (``Experiment.max_seeds`` /
-    ``Arm.max_seeds``): (experiment/arm, seeds run, seeds asked)."""
-    out = []
+def selected_arms(d: dict):
+    """(experiment, arm) of every arm the definition selects (``NAME:ARM+ARM`` selects some arms)."""
     for item in d["experiments"]:
         exp_name, _, only = item.partition(":")
         exp = experiment(exp_name)
-        asked = len(d["seeds"] if exp.kind == "single" else d["chain_seeds"])
         for arm in exp.arms:
-            if only and arm.name not in only.split("+"):
-                continue
-            caps = [c for c in (exp.max_seeds, arm.max_seeds) if c]
-            if caps and min(caps) < asked:
-                out.append((f"{exp.name}/{arm.name}", min(caps), asked))
+            if not only or arm.name in only.split("+"):
+                yield exp, arm
+
+
+def _arm_cells(d: dict, exp: Experiment, arm: Arm) -> List[Tuple[str, str]]:
+    """(method, task) pairs an arm's seeds are decided for: single-task runs per task, chains per target."""
+    methods = [m for m in exp.method_names() if m in d["methods"] and (arm.methods is None or m in arm.methods)]
+    tasks = d["tasks"] if exp.kind == "single" else d["task_order"][-1:]
+    return [(m, t) for m in methods for t in tasks]
+
+
+def seeds_for(d: dict, exp: Experiment, arm: Arm, method: str, task: str) -> List[int]:
+    """The seeds one arm runs for one method and task (a chain's task: its target). The one place seeds are
+    decided: the definition's seed table (``arm_seeds``: the reference preset without --seeds/--chain-seeds),
+    else its seeds capped by ``Experiment.max_seeds`` / ``Arm.max_seeds``."""
+    table = d.get("arm_seeds")
+    if table is not None:
+        return list(range(int(table[seed_key(table, exp.name, arm.name, method, task)])))
+    seeds = list(d["seeds"] if exp.kind == "single" else d["chain_seeds"])
+    caps = [c for c in (exp.max_seeds, arm.max_seeds) if c]
+    return seeds[: min(caps)] if caps else seeds
+
+
+def seed_plan(d: dict) -> List[Tuple[str, str, int, int]]:
+    """Per selected arm, or per seed-table key where an arm's methods or tasks differ: (experiment/arm, the
+    key's method or task ("" for the whole arm), seeds planned, seeds the definition lists for its kind)."""
+    out = []
+    table = d.get("arm_seeds")
+    for exp, arm in selected_arms(d):
+        asked = len(d["seeds"] if exp.kind == "single" else d["chain_seeds"])
+        groups: Dict[str, int] = {}
+        for m, t in _arm_cells(d, exp, arm):
+            key = seed_key(table, exp.name, arm.name, m, t) if table is not None else ""
+            groups.setdefault(":".join(key.split(":")[2:]), len(seeds_for(d, exp, arm, m, t)))
+        if len(set(groups.values())) == 1:
+            groups = {"": next(iter(groups.values()))}
+        out += [(f"{exp.name}/{arm.name}", g, n, asked) for g, n in (groups or {"": 0}).items()]
     return out
+
+
+def capped_arms(d: dict) -> List[Tuple[str, int, int]]:
+    """The selected arms (or an arm's method/task) that run fewer seeds than the definition asks for their
+    kind: (experiment/arm[ method/task], seeds run, seeds asked)."""
+    return [(arm + (f" {g}" if g else ""), n, asked) for arm, g, n, asked in seed_plan(d) if n < asked]
 
 
 def job_for(payload: dict, check_parent: bool = True) -> dict:
@@ -85,11 +120,6 @@ def preset_from_definition(d: dict) -> Preset:
                   settings=tuple(d["preset_settings"]), default_steps=b.get("default"))
 
 
-def _seeds(exp: Experiment, d: dict) -> List[int]:
-    seeds = list(d["seeds"] if exp.kind == "single" else d["chain_seeds"])
-    return seeds[: exp.max_seeds] if exp.max_seeds else seeds
-
-
 def chain_configs(p: Preset, exp: Experiment, arm_settings, user, method: str, seed: int,
                   order: Sequence[str], adapt_factor: float = 1.0,
                   prior_method: Optional[str] = None) -> List[RunConfig]:
@@ -106,6 +136,12 @@ def chain_configs(p: Preset, exp: Experiment, arm_settings, user, method: str, s
         cfg = overrides.apply(cfg, tuple(user) + tuple(arm_settings), stage=i, n_stages=n)
         stages.append(cfg.validate())
     return stages
+
+
+def _seed_order(per_task: Dict[str, List[int]]):
+    """Seeds in the order the definition lists them (a --seeds list need not be sorted)."""
+    order = {s: i for seeds in per_task.values() for i, s in enumerate(seeds)}
+    return lambda s: (order[s], s)
 
 
 def build_grid(d: dict) -> List[Node]:
@@ -129,11 +165,12 @@ def build_grid(d: dict) -> List[Node]:
             for method in methods:
                 if arm.methods is not None and method not in arm.methods:
                     continue
-                seeds = _seeds(exp, d)
-                for seed in seeds[: arm.max_seeds] if arm.max_seeds else seeds:
+                per_task = {t: seeds_for(d, exp, arm, method, t)
+                            for t in (d["tasks"] if exp.kind == "single" else d["task_order"][-1:])}
+                for seed in sorted(set().union(*per_task.values()), key=_seed_order(per_task)):
                     base = {"experiment": exp.name, "arm": arm.name, "method": method, "seed": seed}
                     if exp.kind == "single":
-                        for task in d["tasks"]:
+                        for task in [t for t in d["tasks"] if seed in per_task[t]]:
                             cfg = p.base_config(method, seed)
                             cfg.env_id, cfg.total_steps = task, p.steps("single", task)
                             cfg = overrides.apply(cfg, tuple(user) + tuple(settings)).validate()

@@ -27,6 +27,8 @@ class Preset:
     chain_seeds: Tuple[int, ...]              # chain and scratch experiments (transfer claims)
     settings: Tuple[str, ...] = ()            # dotted RunConfig overrides, e.g. "sac.lr=1e-3"
     default_steps: Optional[int] = None       # budget of a task the dicts above do not name
+    # seeds per arm (``seed_count``'s keys), used when no --seeds/--chain-seeds is given; wins over max_seeds
+    arm_seeds: Optional[Dict[str, int]] = None
 
     def steps(self, role: str, task: str) -> int:
         table = {"single": self.single_steps, "source": self.stage_steps, "adapt": self.adaptation_steps}[role]
@@ -50,6 +52,16 @@ class Preset:
         return cfg.validate()
 
 
+def seed_key(table: Dict[str, int], experiment: str, arm: str, method: str, task: str) -> str:
+    """The key of a seed table that decides one cell: the most specific one (``experiment:arm:method``,
+    then ``experiment:arm:task``, then ``experiment:arm``)."""
+    for key in (f"{experiment}:{arm}:{method}", f"{experiment}:{arm}:{task}", f"{experiment}:{arm}"):
+        if key in table:
+            return key
+    from ..config import ConfigError
+    raise ConfigError(f"the seed table has no entry for {experiment}:{arm} (add one to presets.REFERENCE_SEEDS)")
+
+
 def _every_task(n: int, **per_task: int) -> Dict[str, int]:
     out = {t: n for t in TASKS}
     out.update({k.replace("_", "-"): v for k, v in per_task.items()})
@@ -66,6 +78,47 @@ QUICK_SETTINGS = (
 )
 QUICK_SINGLE = {"ReachTarget-v1": 10_000, "CloseBox-v1": 10_000, "CloseMicrowave-v1": 16_000}
 
+# The seeds behind results/reference, per arm: key -> n (seeds 0..n-1; 0 = not in the reference). Keys are
+# experiment:arm, or experiment:arm:method / experiment:arm:task where one arm has different counts per method
+# or task (seed_count: method, then task, then arm). Every arm of the registry has an entry, and the plan of
+# `sweep --preset reference --experiments all` is exactly the cells of results/reference/scores.csv
+# (tests/test_sweep.py): add seeds to the reference, then edit this table in the same commit.
+REFERENCE_SEEDS: Dict[str, int] = {
+    "single:paper:sac_her_per": 0,
+    "single:paper:ReachTarget-v1": 10,
+    "single:paper:CloseBox-v1": 50,
+    "single:paper:CloseMicrowave-v1": 20,
+    "transfer:paper": 32,
+    "ratios:0.5/0.5": 32,
+    "ratios:0.6/0.4": 32,
+    "ratios:0.7/0.3": 32,
+    "scratch:paper": 32,
+    "e_share:paper": 32,
+    "e_share:e_off": 32,
+    "e_share:split": 8,
+    "e_share:r_matched": 32,
+    "e_share:r_starved": 16,
+    "e_share:e_critic": 8,
+    "mechanism:e_off": 16,
+    "mechanism:r_matched": 16,
+    "mechanism:r_starved": 16,
+    "mechanism:e_critic": 8,
+    "matched_chain:r_matched_all": 0,
+    "budget:x2": 6,
+    "budget:x4": 0,
+    "budget:x8": 0,
+    "shared_prior:shared": 32,
+    "e_content:e_target_only": 8,
+    "e_content:e_episodes": 8,
+    "warm_start:paper": 32,
+    "warm_start:warm": 32,
+    "warm_start:warm_low_lr": 16,
+    "her_episode:paper": 0,
+    "her_episode:her_episode": 32,
+    "regime:long": 6,
+    "regime:long_episode": 12,
+}
+
 PRESETS: Dict[str, Preset] = {
     "smoke": Preset(
         "CI: the whole pipeline (every experiment, table and plot) in about a minute; learns nothing",
@@ -79,12 +132,13 @@ PRESETS: Dict[str, Preset] = {
         single_steps=dict(QUICK_SINGLE), stage_steps=_every_task(6_000), adaptation_steps=_every_task(12_000),
         seeds=(0, 1, 2, 3), chain_seeds=tuple(range(6)), default_steps=10_000, settings=QUICK_SETTINGS),
     # The reference (results/reference): quick's budgets and settings, an evaluation at env step 0 of every
-    # run (the prior's zero-shot score), 16 chain seeds for the adaptation claims and ablations.
+    # run (the prior's zero-shot score); each arm's seeds from REFERENCE_SEEDS unless --seeds/--chain-seeds
+    # (then 10 single-task and 16 chain seeds, capped by max_seeds).
     "reference": Preset(
-        "quick's settings at the seeds the adaptation claims need (16 per side), evaluation at step 0",
+        "quick's settings at the seeds of results/reference (REFERENCE_SEEDS per arm), evaluation at step 0",
         single_steps=dict(QUICK_SINGLE), stage_steps=_every_task(6_000), adaptation_steps=_every_task(12_000),
         seeds=tuple(range(10)), chain_seeds=tuple(range(16)), default_steps=10_000,
-        settings=QUICK_SETTINGS + ("eval_at_start=true",)),
+        settings=QUICK_SETTINGS + ("eval_at_start=true",), arm_seeds=REFERENCE_SEEDS),
     "full": Preset(
         "quick's budgets and settings with 30 seeds everywhere (~7 h on 2 cores, or a Ray cluster)",
         single_steps=dict(QUICK_SINGLE), stage_steps=_every_task(6_000), adaptation_steps=_every_task(12_000),

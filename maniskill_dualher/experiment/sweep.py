@@ -24,7 +24,7 @@ from ..config import TASKS, ConfigError
 from ..methods import METHOD_SPECS
 from ..rundir import RUNS_DIR, SWEEP
 from . import overrides
-from .grid import Node, build_grid, capped_arms
+from .grid import Node, build_grid, capped_arms, seed_plan, selected_arms
 from .presets import PRESETS, preset
 from .registry import EXPERIMENTS, ablation_experiments, default_experiments
 
@@ -121,6 +121,11 @@ def definition_from_args(a: argparse.Namespace) -> dict:
         "preset_settings": list(p.settings),
         "settings": settings,
     }
+    if p.arm_seeds is not None and a.seeds is None and a.chain_seeds is None:
+        # the preset's seed table decides each arm's seeds; only the selected arms' keys, so editing another
+        # arm's entry leaves this sweep's definition (and its out folder) as it was
+        arms = {f"{exp.name}:{arm.name}" for exp, arm in selected_arms(d)}
+        d["arm_seeds"] = {k: n for k, n in p.arm_seeds.items() if ":".join(k.split(":")[:2]) in arms}
     for name in (x.split(":")[0] for x in d["experiments"]):
         e = EXPERIMENTS[name]
         if not set(e.method_names()) & set(d["methods"]):
@@ -193,9 +198,11 @@ def make_parser() -> argparse.ArgumentParser:
                                      "uses those of them it is defined for)")
     p.add_argument("--seeds", help="a count or a comma list, for every experiment: '3' is a count (seeds 0,1,2); "
                                    "'0,4,7' lists seeds; one seed is a list of one, written with a trailing comma: "
-                                   "'7,' is seed 7 ('7' is seeds 0-6). Default: the preset's. Costly arms are capped (Arm/Experiment "
-                                   "max_seeds; --dry-run names them): more seeds than a selected arm's cap are "
-                                   "refused unless --allow-capped (then the cap applies)")
+                                   "'7,' is seed 7 ('7' is seeds 0-6). Default: the preset's; the reference preset's "
+                                   "are per arm (presets.REFERENCE_SEEDS: exactly the runs of results/reference), and "
+                                   "--seeds or --chain-seeds drops that table. Costly arms are capped (Arm/Experiment "
+                                   "max_seeds; --dry-run names them, with a seeds: line per arm): more seeds than a "
+                                   "selected arm's cap are refused unless --allow-capped (then the cap applies)")
     p.add_argument("--allow-capped", action="store_true",
                    help="accept that capped arms run fewer seeds than --seeds/--chain-seeds ask")
     p.add_argument("--chain-seeds", "--transfer-seeds", dest="chain_seeds",
@@ -304,9 +311,16 @@ def _main(argv: Optional[Sequence[str]], held, train: Optional[Callable], report
         return 2
     workers = a.workers or (None if a.ray_address else min(2, os.cpu_count() or 1))
     todo_cfgs = [n.cfg for n in nodes if not rundir.is_done(out / n.rel)]
+    table = d.get("arm_seeds") is not None
+    of = (lambda n: f"of the preset's {n} seeds (seed table)") if table else (lambda n: f"of the {n} seeds asked")
     for arm, cap, asked in capped:  # never a silent cut
-        print(f"capped: {arm} runs {cap} of the {asked} seeds asked (max_seeds)")
+        print(f"capped: {arm} runs {cap} {of(asked)}" + ("" if table else " (max_seeds)")
+              + (f": not in results/{a.preset}" if table and cap == 0 else ""))
     if a.dry_run:
+        for arm, group, n, asked in seed_plan(d):
+            print(f"seeds: {arm}{' ' + group if group else ''}: {n}" + (f" (0-{n - 1})" if n else "")
+                  + ((f", capped: the preset lists {asked} [seed table]" if table else
+                      f", capped: {asked} asked [max_seeds]") if n < asked else (" [seed table]" if table else "")))
         for n in nodes:
             state = "done" if rundir.is_done(out / n.rel) else "todo"
             cells = sorted({f"{c['experiment']}/{c['arm']}" for c in n.cells})
