@@ -104,7 +104,7 @@ REFERENCE_SEEDS: Dict[str, int] = {
     "mechanism:r_matched": 16,
     "mechanism:r_starved": 32,
     "mechanism:e_critic": 48,
-    "matched_chain:r_matched_all": 16,
+    "matched_chain:r_matched_all": 32,
     "budget:x2": 6,
     "budget:x4": 0,
     "budget:x8": 0,
