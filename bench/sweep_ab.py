@@ -19,7 +19,6 @@ these 2-core machines vary by about +-10% (docs/speed.md): read the pair ratios'
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import os
 import statistics
@@ -31,23 +30,15 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-
-def metrics(folder: Path) -> dict:
-    """Every run's metrics.csv rows without wall time, by run folder."""
-    out = {}
-    for f in sorted(folder.rglob("metrics.csv")):
-        with open(f) as fh:
-            out[str(f.parent.relative_to(folder))] = [{k: v for k, v in r.items() if k != "wall_time_s"}
-                                                     for r in csv.DictReader(fh)]
-    return out
+from sweep_speed import metrics  # noqa: E402  (every run's metrics without wall time: one definition)
 
 
 def git_commit(tree: Path) -> str:
-    r = subprocess.run(["git", "-C", str(tree), "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
-    dirty = subprocess.run(["git", "-C", str(tree), "status", "--porcelain", "--untracked-files=no"],
-                           capture_output=True, text=True).stdout.strip()
-    return (r.stdout.strip() or "unknown") + ("+dirty" if dirty else "")
+    from maniskill_dualher.provenance import git_state
+    g = git_state(tree)
+    return (g["commit_short"] or "unknown") + ("+dirty" if g["dirty"] else "")
 
 
 def sweep(tree: Path, out: Path, a, tasks: str, seeds: str, steps: int) -> float:
