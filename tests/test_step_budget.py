@@ -1,17 +1,12 @@
 """bench/step_budget.py: bad input is one line and exit code 2; a short run attributes its wall time."""
 import json
-import os
-import subprocess
-import sys
-from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+from bench_cli import run_bench
+
 
 
 def _run(*args):
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
-    return subprocess.run([sys.executable, str(ROOT / "bench" / "step_budget.py"), *args], env=env,
-                          capture_output=True, text=True)
+    return run_bench("step_budget.py", *args)
 
 
 def test_bad_input_is_one_line_exit_2(tmp_path):

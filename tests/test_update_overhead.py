@@ -1,18 +1,15 @@
 """bench/update_overhead.py: bad input is one line and exit code 2; a short run times both sides and finds
 their weights identical (here both sides are this tree)."""
 import json
-import os
-import subprocess
-import sys
 from pathlib import Path
+
+from bench_cli import run_bench
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def _run(*args):
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
-    return subprocess.run([sys.executable, str(ROOT / "bench" / "update_overhead.py"), *args], env=env,
-                          capture_output=True, text=True)
+    return run_bench("update_overhead.py", *args)
 
 
 def test_bad_input_is_one_line_exit_2(tmp_path):
