@@ -4,7 +4,6 @@ import json
 from bench_cli import run_bench
 
 
-
 def _run(*args):
     return run_bench("step_budget.py", *args)
 
