@@ -634,3 +634,6 @@ def test_the_seed_table_decides_by_default_and_explicit_seeds_drop_it(tmp_path, 
     assert "seeds: her_episode/paper: 0, capped: the preset lists 16 [seed table]" in lines
     assert "capped: her_episode/paper runs 0 of the preset's 16 seeds (seed table): not in results/reference" in lines
     assert any(ln.startswith("cost: ") for ln in lines) and not out.exists()
+    # explicit seeds are named as asked, not as a count from 0
+    assert run_sweep([*base, "--chain-seeds", "4,5,6,7"]) == 0
+    assert "seeds: her_episode/her_episode: 4 (4-7)" in capsys.readouterr().out.splitlines()

@@ -78,27 +78,38 @@ def seeds_for(d: dict, exp: Experiment, arm: Arm, method: str, task: str) -> Lis
     return seeds[: min(caps)] if caps else seeds
 
 
-def seed_plan(d: dict) -> List[Tuple[str, str, int, int]]:
+def seed_plan(d: dict) -> List[Tuple[str, str, Tuple[int, ...], int]]:
     """Per selected arm, or per seed-table key where an arm's methods or tasks differ: (experiment/arm, the
-    key's method or task ("" for the whole arm), seeds planned, seeds the definition lists for its kind)."""
+    key's method or task ("" for the whole arm), the seeds planned, seeds the definition lists for its kind)."""
     out = []
     table = d.get("arm_seeds")
     for exp, arm in selected_arms(d):
         asked = len(d["seeds"] if exp.kind == "single" else d["chain_seeds"])
-        groups: Dict[str, int] = {}
+        groups: Dict[str, Tuple[int, ...]] = {}
         for m, t in _arm_cells(d, exp, arm):
             key = seed_key(table, exp.name, arm.name, m, t) if table is not None else ""
-            groups.setdefault(":".join(key.split(":")[2:]), len(seeds_for(d, exp, arm, m, t)))
+            groups.setdefault(":".join(key.split(":")[2:]), tuple(seeds_for(d, exp, arm, m, t)))
         if len(set(groups.values())) == 1:
             groups = {"": next(iter(groups.values()))}
-        out += [(f"{exp.name}/{arm.name}", g, n, asked) for g, n in (groups or {"": 0}).items()]
+        out += [(f"{exp.name}/{arm.name}", g, s, asked) for g, s in (groups or {"": ()}).items()]
     return out
+
+
+def seed_span(seeds: Sequence[int]) -> str:
+    """Seeds as a reader writes them: '0-15', '32-47', '0-3, 7'."""
+    parts, s = [], sorted(seeds)
+    for i, x in enumerate(s):
+        if i and x == s[i - 1] + 1:
+            parts[-1][1] = x
+        else:
+            parts.append([x, x])
+    return ", ".join(f"{a}" if a == b else f"{a}-{b}" for a, b in parts)
 
 
 def capped_arms(d: dict) -> List[Tuple[str, int, int]]:
     """The selected arms (or an arm's method/task) that run fewer seeds than the definition asks for their
     kind: (experiment/arm[ method/task], seeds run, seeds asked)."""
-    return [(arm + (f" {g}" if g else ""), n, asked) for arm, g, n, asked in seed_plan(d) if n < asked]
+    return [(arm + (f" {g}" if g else ""), len(s), asked) for arm, g, s, asked in seed_plan(d) if len(s) < asked]
 
 
 def job_for(payload: dict, check_parent: bool = True) -> dict:

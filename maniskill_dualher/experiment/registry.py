@@ -95,7 +95,7 @@ EXPERIMENTS: Dict[str, Experiment] = {e.name: e for e in (
         Arm("e_off", ("adapt.replay.ratio=1/0",), doc="same prior, E never sampled in adaptation"),
         Arm("split", ("adapt.replay.dual_mode=split",), doc="E's 40% inside every batch", max_seeds=8),
         Arm("r_matched", ("adapt.sac.updates_per_step=1/0.6",),
-            doc="1/0.6 updates per env step: as many updates from R as SAC+HER+PER", max_seeds=8),
+            doc="1/0.6 updates per env step: as many updates from R as SAC+HER+PER"),
         Arm("r_starved", ("adapt.replay.ratio=1/0", "adapt.sac.updates_per_step=0.6"),
             doc="E off at 0.6 updates per env step: R's share of the paper arm's updates, no E batches"),
         Arm("e_critic", ("adapt.replay.e_batches=critic",),

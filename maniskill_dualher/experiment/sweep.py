@@ -24,7 +24,7 @@ from ..config import TASKS, ConfigError
 from ..methods import METHOD_SPECS
 from ..rundir import RUNS_DIR, SWEEP
 from . import overrides
-from .grid import Node, build_grid, capped_arms, seed_plan, selected_arms
+from .grid import Node, build_grid, capped_arms, seed_plan, seed_span, selected_arms
 from .presets import PRESETS, preset
 from .registry import EXPERIMENTS, ablation_experiments, default_experiments
 
@@ -317,8 +317,9 @@ def _main(argv: Optional[Sequence[str]], held, train: Optional[Callable], report
         print(f"capped: {arm} runs {cap} {of(asked)}" + ("" if table else " (max_seeds)")
               + (f": not in results/{a.preset}" if table and cap == 0 else ""))
     if a.dry_run:
-        for arm, group, n, asked in seed_plan(d):
-            print(f"seeds: {arm}{' ' + group if group else ''}: {n}" + (f" (0-{n - 1})" if n else "")
+        for arm, group, seeds, asked in seed_plan(d):
+            n = len(seeds)
+            print(f"seeds: {arm}{' ' + group if group else ''}: {n}" + (f" ({seed_span(seeds)})" if n else "")
                   + ((f", capped: the preset lists {asked} [seed table]" if table else
                       f", capped: {asked} asked [max_seeds]") if n < asked else (" [seed table]" if table else "")))
         for n in nodes:
