@@ -18,9 +18,11 @@ Same episodes for all: the episode length is ours (the preset's ``max_episode_st
 builds); if ours ends episodes on success (``cfg.terminate_on_success``), the peers' env passes ManiSkill's
 ``terminated`` (= success) through, otherwise episodes are fixed-length. Same control and reward mode.
 ``sb3_own`` and ``sbx_own`` are the same peers at **their own convention**, as their users run HER: training
-episodes of that length that do not end on success (evaluation as for everyone). Both comparisons are fair
-questions: equal semantics asks "which code learns this MDP faster", the own convention "how long would a
-user of that library wait".
+episodes of that length that do not end on success (evaluation as for everyone); ``ours_fixed`` is ours so
+too (``terminate_on_success=False``). Three comparisons, each the fastest peer's median over ours': equal
+semantics (ours vs sb3, sbx: "which code learns this MDP faster"), fixed-length episodes (ours_fixed vs
+sb3_own, sbx_own: the same question at the peers' convention), and each at its own convention (ours vs
+sb3_own, sbx_own: "how long would a user of each library wait").
 
 Evaluation: 10 fixed episodes (``--eval-episodes``) every ``--eval-every`` env steps (default 1000),
 deterministic policy, reset seeds ``maniskill_dualher.envs.EVAL_SEED_BASE + i`` for all contenders (the
@@ -36,7 +38,8 @@ Contenders alternate (ours s0, SB3 s0, SBX s0, ours s1, ...). Raw results, every
 included, go to ``--out`` (JSON, written atomically after every run).
 
     python bench/time_to_success.py [--tasks ReachTarget-v1,CloseBox-v1] [--seeds 3] [--max-steps 30000]
-        [--eval-every 1000] [--eval-episodes 10] [--contenders ours,sb3,sbx] [--out bench/results/time_to_success.json]
+        [--eval-every 1000] [--eval-episodes 10] [--contenders ours,sb3,sbx,ours_fixed,sb3_own,sbx_own]
+        [--out bench/results/time_to_success.json]
 """
 from __future__ import annotations
 
@@ -66,14 +69,18 @@ import torch  # noqa: E402
 
 THRESHOLD = 0.9
 TASKS = ("ReachTarget-v1", "CloseBox-v1")
-CONTENDERS = ("ours", "sb3", "sbx", "sb3_own", "sbx_own")
+CONTENDERS = ("ours", "sb3", "sbx", "ours_fixed", "sb3_own", "sbx_own")
 DEFAULT_OUT = os.path.join(REPO, "bench", "results", "time_to_success.json")
 # rl-baselines3-zoo goal-task settings (FetchReach: net [64, 64], learning_starts 1000; the goal tasks' lr,
 # tau, gamma, buffer and HER settings)
 ZOO = dict(net_arch=[64, 64], learning_rate=1e-3, tau=0.05, gamma=0.95, batch_size=256, buffer_size=1_000_000,
            learning_starts=1000, n_sampled_goal=4, train_freq=1, gradient_steps=1)
 NAMES = {"ours": "ours sac_her_per", "sb3": "SB3 SAC + HER", "sbx": "SBX SAC + HER",
-         "sb3_own": "SB3, own convention", "sbx_own": "SBX, own convention"}
+         "ours_fixed": "ours, fixed-length", "sb3_own": "SB3, own convention", "sbx_own": "SBX, own convention"}
+# per comparison: ours' contender and the peers it is set against (the fastest peer's median over ours')
+COMPARISONS = (("equal semantics", "ours", ("sb3", "sbx")),
+               ("fixed-length episodes (the peers' own convention)", "ours_fixed", ("sb3_own", "sbx_own")),
+               ("each at its own convention", "ours", ("sb3_own", "sbx_own")))
 
 
 def peer_library(contender: str) -> str:
@@ -82,9 +89,13 @@ def peer_library(contender: str) -> str:
 
 
 # --------------------------------------------------------------------------- settings
-def our_config(task: str, seed: int, args):
+def our_config(task: str, seed: int, args, fixed_length: bool = False):
+    """Ours as the preset builds it; ``fixed_length``: training episodes that do not end on success (the
+    peers' own convention; evaluation unchanged)."""
     from maniskill_dualher.experiment.presets import PRESETS
     cfg = PRESETS[args.preset].single_config("sac_her_per", seed, task)
+    if fixed_length:
+        cfg.terminate_on_success = False
     cfg.total_steps = args.max_steps
     cfg.eval_every = args.eval_every
     cfg.eval_episodes = args.eval_episodes
@@ -127,9 +138,9 @@ def _point(env_steps: int, success: float, wall: float, **extra) -> dict:
     return {"env_steps": int(env_steps), "eval_success_rate": float(success), "wall_s": round(wall, 3), **extra}
 
 
-def run_ours(task: str, seed: int, args, rules: dict) -> dict:
+def run_ours(task: str, seed: int, args, rules: dict, fixed_length: bool = False) -> dict:
     from maniskill_dualher.train import Trainer, run_one
-    cfg = our_config(task, seed, args)
+    cfg = our_config(task, seed, args, fixed_length)
     tmp = tempfile.mkdtemp(prefix="tts_ours_")
     t_setup = time.perf_counter()
     tr = Trainer(cfg, os.path.join(tmp, "run"), show_progress=False)
@@ -218,17 +229,18 @@ def summarize(runs, tasks, contenders) -> dict:
             per[c] = {"runs": len(rs), "reached": sum(r["reached"] for r in rs),
                       "wall_s": _stats(wall), "env_steps": _stats(steps),
                       "errors": sum(1 for r in runs if r["task"] == task and r["contender"] == c and r.get("error"))}
-        ratios = {}  # per convention: the fastest peer's median over ours'
-        for convention, group in (("equal semantics", ("sb3", "sbx")), ("peers' own convention", ("sb3_own", "sbx_own"))):
+        ratios = {}  # per comparison: the fastest peer's median over ours'
+        for convention, ours, group in COMPARISONS:
             for key in ("wall_s", "env_steps"):
                 peers = {c: per[c][key]["median"] for c in per if c in group}
-                if "ours" not in per or not peers:
+                if ours not in per or not peers:
                     continue
                 best = min(peers, key=lambda c: peers[c])
-                ours_m = per["ours"][key]["median"]
+                ours_m = per[ours][key]["median"]
                 ratio = None if math.isinf(ours_m) or math.isinf(peers[best]) else peers[best] / ours_m
-                ratios.setdefault(convention, {})[key] = {"fastest_peer": best, "peer_median": peers[best],
-                                                           "ours_median": ours_m, "ratio": ratio}
+                ratios.setdefault(convention, {})[key] = {"ours": ours, "fastest_peer": best,
+                                                           "peer_median": peers[best], "ours_median": ours_m,
+                                                           "ratio": ratio}
         out[task] = {"contenders": per, "fastest_peer_over_ours": ratios}
     return out
 
@@ -306,7 +318,7 @@ def main(argv=None) -> int:
     p.add_argument("--eval-episodes", type=int, default=10, help="fixed evaluation episodes (default 10)")
     p.add_argument("--contenders", default="ours,sb3,sbx",
                    help=f"comma-separated subset of {','.join(CONTENDERS)} (default ours,sb3,sbx; *_own: the peer at "
-                        f"its own convention, episodes that do not end on success)")
+                        f"its own convention, episodes that do not end on success; ours_fixed: ours so too)")
     p.add_argument("--preset", default="quick", help="the sweep preset ours is built from (default quick)")
     p.add_argument("--out", default=DEFAULT_OUT, help="raw results JSON (default bench/results/time_to_success.json)")
     args = p.parse_args(argv)
@@ -331,7 +343,7 @@ def main(argv=None) -> int:
     print(f"# threads: {thread_info()}")
     print(f"# load average at start: {loadavg()}")
     print(f"# ours: {args.preset!r} preset, sac_her_per: {describe_ours(our_config(tasks[0], 0, args))}")
-    peers = [c for c in contenders if c != "ours"]
+    peers = [c for c in contenders if not c.startswith("ours")]
     if peers:
         print(f"# peers ({'; '.join(lib_version(peer_library(c)) for c in peers)}): " + ", ".join(f"{k} {v}" for k, v in ZOO.items()))
 
@@ -355,7 +367,8 @@ def main(argv=None) -> int:
             for c in contenders:
                 rec = {"task": task, "contender": c, "name": NAMES[c], "seed": seed, "error": None}
                 try:
-                    res = run_ours(task, seed, args, rules) if c == "ours" else run_peer(c, task, seed, args, rules)
+                    res = (run_ours(task, seed, args, rules, fixed_length=c == "ours_fixed") if c.startswith("ours")
+                           else run_peer(c, task, seed, args, rules))
                     rec.update(res)
                     hit = next((pt for pt in res["curve"] if pt["eval_success_rate"] >= THRESHOLD), None)
                     rec["wall_s_to_threshold"] = hit["wall_s"] if hit else None

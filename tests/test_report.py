@@ -389,31 +389,42 @@ def test_merge_adds_another_sweeps_cells_with_their_machine(folder, tmp_path, ca
     assert {p: p.read_bytes() for p in ref.rglob("*") if p.is_file()} == before
 
 
-def test_sides_are_paired_only_when_every_seed_adapted_the_same_prior_runs():
-    def rows(arm, seed, src, value):
+def test_sides_are_paired_on_the_seeds_whose_two_sides_adapted_one_prior():
+    def rows(arm, seed, src, value, prior_score="1"):
         base = {"experiment": "ratios", "arm": arm, "method": "dual_buffer", "task": "CloseMicrowave-v1",
                 "seed": str(seed), "machine": "m"}
-        return [{**base, "stage": "0", "role": "source", "metric": "successful_train_episodes", "value": "1",
-                 "run": src},
+        return [{**base, "stage": "0", "role": "source", "metric": "successful_train_episodes",
+                 "value": prior_score, "run": src},
                 {**base, "stage": "2", "role": "adapt", "metric": "successful_train_episodes", "value": str(value),
                  "run": f"{src}/{arm}"}]
     c = next(c for c in claims_mod.CLAIMS if c.key == "c")    # ratios 0.6/0.4 vs 0.5/0.5
-    same = [r for s in range(4) for arm in ("0.6/0.4", "0.5/0.5") for r in rows(arm, s, f"sw/s{s}", 10 + s)]
-    assert claims_mod.paired(same, c)
+    same = [r for s in range(6) for arm in ("0.6/0.4", "0.5/0.5") for r in rows(arm, s, f"sw/runs/s{s}", 10 + s)]
+    assert claims_mod.paired_seeds(same, c) == list(range(6))
     row = next(r for r in claims_mod.claim_rows(same, 200, [c]))
     assert row["paired"] == "yes" and row["paper_ratio"] == pytest.approx(250 / 154)
-    # one seed's prior trained twice (another sweep): not the same prior, so not paired
-    other = [r for r in same if not (r["seed"] == "3" and r["arm"] == "0.5/0.5")] + rows("0.5/0.5", 3, "sw2/s3", 13)
-    assert not claims_mod.paired(other, c)
-    # a side with fewer seeds, each on the other side's prior: paired on those seeds alone
-    fewer = [r for r in same if not (r["seed"] == "0" and r["arm"] == "0.6/0.4")]
-    assert claims_mod.paired_seeds(fewer, c) == [1, 2, 3]
-    row = claims_mod.claim_rows(fewer, 200, [c])[0]
-    assert (row["n_a"], row["n_b"], row["paired"]) == (3, 3, "yes")
-    # seed sets neither of which holds the other, or sides without source stages (scratch), are not paired
-    shifted = fewer + rows("0.6/0.4", 4, "sw/s4", 14)
-    assert not claims_mod.paired(shifted, c)
+    # the same config and seed trained again in another sweep, every recorded score equal: one prior
+    again = [r for r in same if not (r["seed"] == "5" and r["arm"] == "0.5/0.5")] + rows("0.5/0.5", 5, "sw2/runs/s5", 15)
+    assert claims_mod.paired_seeds(again, c) == list(range(6))
+    # trained again with other scores (another CPU), or another config: not that prior; paired on the rest
+    other = [r for r in same if not (r["seed"] in "45" and r["arm"] == "0.5/0.5")]
+    other += rows("0.5/0.5", 4, "sw2/runs/s4", 14, prior_score="2") + rows("0.5/0.5", 5, "sw/runs/s5x", 15)
+    assert claims_mod.paired_seeds(other, c) == [0, 1, 2, 3]
+    row = claims_mod.claim_rows(other, 200, [c])[0]
+    assert (row["n_a"], row["n_b"], row["paired"]) == (4, 4, "yes")
+    # fewer than half of the smaller side's seeds pair: every seed, unpaired
+    half = [r for r in same if not (r["seed"] in "0123" and r["arm"] == "0.5/0.5")]
+    half += [r for s in range(4) for r in rows("0.5/0.5", s, f"sw3/runs/s{s}x", 10 + s)]
+    assert not claims_mod.paired(half, c)
+    assert claims_mod.claim_rows(half, 200, [c])[0]["n_a"] == 6
+    # sides without source stages (scratch) are not paired
     assert not claims_mod.paired([r for r in same if r["role"] == "adapt"], c)
+
+
+def test_a_run_identity_drops_its_sweeps_prefix():
+    assert claims_mod.run_identity("ref_c/runs/chain/d-s0/stage0-x-1a") == "runs/chain/d-s0/stage0-x-1a"
+    assert claims_mod.run_identity("runs/chain/d-s0/stage0-x-1a") == "runs/chain/d-s0/stage0-x-1a"
+    assert claims_mod.run_identity("p/runs/a/runs/chain/x") == "runs/chain/x"
+    assert claims_mod.run_identity("p/s0") == "p/s0"
 
 
 def _score(exp, arm, method, seed, value, metric="successful_train_episodes", role="adapt", run=None,

@@ -173,6 +173,19 @@ CLAIMS: List[Claim] = [
                                   "episodes", "", N, Side("scratch", "paper", DUAL),
           Side("mechanism", "r_starved", DUAL), relative_margin=True, group="ablation",
           explains="from scratch, adding E's batches to R's 0.6 updates per env step changes the count by"),
+    # The twins of the adaptation claims e_off and r_matched (added in issue 30's third session, so that every
+    # adaptation contrast has its from-scratch twin; the scratch arms' first seeds had been seen by then).
+    Claim("scratch_e_cost", "from scratch, the dual buffer with E off (ratio 1/0) > the paper's dual buffer "
+                            "(0.6/0.4): successful episodes (what E costs in all: R's lost updates and E's "
+                            "batches)", "", N, Side("mechanism", "e_off", DUAL), Side("scratch", "paper", DUAL),
+          relative_margin=True, group="ablation",
+          explains="from scratch, E off (ratio 1/0) minus the paper's dual buffer is"),
+    Claim("scratch_r_matched", "from scratch, as many R updates as sac_her_per (1/0.6 updates per env step, E's "
+                               "batches on top) > the paper's dual buffer: successful episodes (R's lost "
+                               "updates, with E)", "", N, Side("mechanism", "r_matched", DUAL),
+          Side("scratch", "paper", DUAL), relative_margin=True, group="ablation",
+          explains="from scratch, R's updates matched (1/0.6 per env step, E's batches on top) change the dual "
+                   "buffer's count by"),
     Claim("adapt_e_batches", "in adaptation on the dual buffer's prior, E's batches on top of R's 1 update per "
                              "env step (1/0.6 updates per step) > E off: successful episodes", "", N,
           Side("e_share", "r_matched", DUAL), Side("e_share", "e_off", DUAL), relative_margin=True,
@@ -277,31 +290,43 @@ def _prior_method(side: Side) -> str:
     return (arm.prior_method if arm is not None and arm.prior_method else side.method)
 
 
-def _source_runs(scores: Sequence[Dict[str, str]], side: Side) -> Dict[int, Tuple[str, ...]]:
-    """Per seed, the run folders of the side's source stages (its prior); empty for single-task or scratch."""
+def run_identity(run: str) -> str:
+    """A run folder without its sweep's prefix: from its last ``runs`` component on (``runs/chain/<method>-s<seed>/
+    stage0-...-<config hash>``), the same for one config and seed in every sweep it was trained in."""
+    parts = run.split("/")
+    cut = max((i for i, p in enumerate(parts) if p == "runs"), default=0)
+    return "/".join(parts[cut:])
+
+
+def _priors(scores: Sequence[Dict[str, str]], side: Side) -> Dict[int, Tuple[Tuple[str, str, str], ...]]:
+    """Per seed, the side's prior as recorded: every (run identity, metric, value) of its source stages; empty
+    for single-task or scratch. Two sides adapted one prior for a seed when these are equal: the same config and
+    seed, and every recorded score of its training the same (trained once and shared, or trained twice, bit for
+    bit, on one kind of CPU)."""
     prior = Side(side.experiment, side.arm, _prior_method(side), side.task, side.role)
-    runs: Dict[int, set] = {}
+    out: Dict[int, set] = {}
     for r in scores:
         if r["role"] == "source" and _in_arm(r, prior):
-            runs.setdefault(int(r["seed"]), set()).add(r["run"])
-    return {s: tuple(sorted(v)) for s, v in runs.items()}
+            out.setdefault(int(r["seed"]), set()).add((run_identity(r["run"]), r["metric"], r["value"]))
+    return {s: tuple(sorted(v)) for s, v in out.items()}
 
 
 def paired_seeds(scores: Sequence[Dict[str, str]], c: Claim) -> Optional[List[int]]:
-    """The seeds to pair on, or None: every seed of the side with fewer seeds (either, if equal) is a seed of
-    the other side too, and adapted the very same source-stage run folders there (one sweep trained the prior
-    once for both). Then the claim is decided on those seeds, paired; a side whose priors are shared only in
-    part is not paired. Decided from the data, never from the outcome."""
+    """The seeds to pair on, or None. A seed pairs when both sides have it and adapted one prior there
+    (``_priors``). When the seeds that pair are at least half of the smaller side's (and at least
+    ``stats.MIN_SEEDS``), the claim is decided on them alone, paired; otherwise on every seed, unpaired. Fixed
+    before any outcome is read: decided from the source stages, never from the adaptation scores."""
     seeds_a, seeds_b = set(_side_rows(scores, c.a, c.metric)), set(_side_rows(scores, c.b, c.metric))
-    small, other = (seeds_a, seeds_b) if len(seeds_a) <= len(seeds_b) else (seeds_b, seeds_a)
-    if not small or not small <= other:
+    if not seeds_a or not seeds_b:
         return None
-    src_a, src_b = _source_runs(scores, c.a), _source_runs(scores, c.b)
-    return sorted(small) if all(src_a.get(s) and src_a.get(s) == src_b.get(s) for s in small) else None
+    prior_a, prior_b = _priors(scores, c.a), _priors(scores, c.b)
+    shared = sorted(s for s in seeds_a & seeds_b if prior_a.get(s) and prior_a.get(s) == prior_b.get(s))
+    need = max(stats.MIN_SEEDS, -(-min(len(seeds_a), len(seeds_b)) // 2))
+    return shared if len(shared) >= need else None
 
 
 def paired(scores: Sequence[Dict[str, str]], c: Claim) -> bool:
-    """Both sides adapted the very same prior for every seed they are compared on (``paired_seeds``)."""
+    """The claim is decided paired, on the seeds whose two sides adapted one prior (``paired_seeds``)."""
     return paired_seeds(scores, c) is not None
 
 

@@ -113,8 +113,9 @@ def summary_md(folder: Path, scores, tables, claims, figures: List[str], unfinis
           f"X**: it lies within +-X (X = {claims_mod.RATE_MARGIN} for rates and returns, "
           f"{claims_mod.COUNT_MARGIN:.0%} of the larger mean for counts and env steps); **inconclusive** "
           "otherwise, with the seeds per side that would decide it at 80% power at the observed spread and "
-          "difference. **paired**: both sides adapted the same prior for every seed compared (the same "
-          "source-stage runs), so the interval is on the per-seed differences.", "",
+          "difference. **paired**: decided on the seeds whose two sides adapted one prior (the same source-stage "
+          "runs, or the same config and seed trained again with every recorded source-stage score equal), when "
+          "they are at least half of the smaller side's seeds; the interval is on their per-seed differences.", "",
           "Verdicts are at 95% per claim. `p_value` is the two-sided p of A = B inverted from the same interval "
           "(the level at which it just reaches 0); within each family (" + "; ".join(FAMILY_TITLES)
           + ") it is adjusted by Holm (`p_holm`) and by Benjamini-Hochberg (`p_bh`). `survives_holm`: a decided "

@@ -59,11 +59,15 @@ def selected_arms(d: dict):
                 yield exp, arm
 
 
+def _seed_tasks(d: dict, exp: Experiment) -> List[str]:
+    """The tasks an experiment's seeds are decided for: single-task runs per task, chains per target."""
+    return list(d["tasks"] if exp.kind == "single" else d["task_order"][-1:])
+
+
 def _arm_cells(d: dict, exp: Experiment, arm: Arm) -> List[Tuple[str, str]]:
-    """(method, task) pairs an arm's seeds are decided for: single-task runs per task, chains per target."""
+    """(method, task) pairs an arm's seeds are decided for."""
     methods = [m for m in exp.method_names() if m in d["methods"] and (arm.methods is None or m in arm.methods)]
-    tasks = d["tasks"] if exp.kind == "single" else d["task_order"][-1:]
-    return [(m, t) for m in methods for t in tasks]
+    return [(m, t) for m in methods for t in _seed_tasks(d, exp)]
 
 
 def seeds_for(d: dict, exp: Experiment, arm: Arm, method: str, task: str) -> List[int]:
@@ -176,8 +180,7 @@ def build_grid(d: dict) -> List[Node]:
             for method in methods:
                 if arm.methods is not None and method not in arm.methods:
                     continue
-                per_task = {t: seeds_for(d, exp, arm, method, t)
-                            for t in (d["tasks"] if exp.kind == "single" else d["task_order"][-1:])}
+                per_task = {t: seeds_for(d, exp, arm, method, t) for t in _seed_tasks(d, exp)}
                 for seed in sorted(set().union(*per_task.values()), key=_seed_order(per_task)):
                     base = {"experiment": exp.name, "arm": arm.name, "method": method, "seed": seed}
                     if exp.kind == "single":
