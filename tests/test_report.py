@@ -405,6 +405,9 @@ def test_sides_are_paired_on_the_seeds_whose_two_sides_adapted_one_prior():
     # the same config and seed trained again in another sweep, every recorded score equal: one prior
     again = [r for r in same if not (r["seed"] == "5" and r["arm"] == "0.5/0.5")] + rows("0.5/0.5", 5, "sw2/runs/s5", 15)
     assert claims_mod.paired_seeds(again, c) == list(range(6))
+    # a newer run of it records one more metric: still that prior (the scores both record are equal)
+    newer = again + [{**again[-2], "metric": "diag_R_alpha", "value": "0.5"}]
+    assert claims_mod.paired_seeds(newer, c) == list(range(6))
     # trained again with other scores (another CPU), or another config: not that prior; paired on the rest
     other = [r for r in same if not (r["seed"] in "45" and r["arm"] == "0.5/0.5")]
     other += rows("0.5/0.5", 4, "sw2/runs/s4", 14, prior_score="2") + rows("0.5/0.5", 5, "sw/runs/s5x", 15)

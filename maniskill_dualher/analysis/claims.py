@@ -298,29 +298,37 @@ def run_identity(run: str) -> str:
     return "/".join(parts[cut:])
 
 
-def _priors(scores: Sequence[Dict[str, str]], side: Side) -> Dict[int, Tuple[Tuple[str, str, str], ...]]:
-    """Per seed, the side's prior as recorded: every (run identity, metric, value) of its source stages; empty
-    for single-task or scratch. Two sides adapted one prior for a seed when these are equal: the same config and
-    seed, and every recorded score of its training the same (trained once and shared, or trained twice, bit for
-    bit, on one kind of CPU)."""
+def _priors(scores: Sequence[Dict[str, str]], side: Side) -> Dict[int, Dict[Tuple[str, str], str]]:
+    """Per seed, the side's prior as recorded: {(run identity, metric): value} over its source stages; empty
+    for single-task or scratch."""
     prior = Side(side.experiment, side.arm, _prior_method(side), side.task, side.role)
-    out: Dict[int, set] = {}
+    out: Dict[int, Dict[Tuple[str, str], str]] = {}
     for r in scores:
         if r["role"] == "source" and _in_arm(r, prior):
-            out.setdefault(int(r["seed"]), set()).add((run_identity(r["run"]), r["metric"], r["value"]))
-    return {s: tuple(sorted(v)) for s, v in out.items()}
+            out.setdefault(int(r["seed"]), {})[(run_identity(r["run"]), r["metric"])] = r["value"]
+    return out
+
+
+def same_prior(p: Dict[Tuple[str, str], str], q: Dict[Tuple[str, str], str]) -> bool:
+    """Two sides adapted one prior: the same source-stage runs (config and seed) and every score both record
+    equal (trained once and shared, or trained twice, bit for bit, on one kind of CPU; a newer run may record
+    more metrics than an older one)."""
+    common = p.keys() & q.keys()
+    return (bool(common) and {k[0] for k in p} == {k[0] for k in q}
+            and all(p[k] == q[k] for k in common))
 
 
 def paired_seeds(scores: Sequence[Dict[str, str]], c: Claim) -> Optional[List[int]]:
     """The seeds to pair on, or None. A seed pairs when both sides have it and adapted one prior there
-    (``_priors``). When the seeds that pair are at least half of the smaller side's (and at least
+    (``same_prior``). When the seeds that pair are at least half of the smaller side's (and at least
     ``stats.MIN_SEEDS``), the claim is decided on them alone, paired; otherwise on every seed, unpaired. Fixed
     before any outcome is read: decided from the source stages, never from the adaptation scores."""
     seeds_a, seeds_b = set(_side_rows(scores, c.a, c.metric)), set(_side_rows(scores, c.b, c.metric))
     if not seeds_a or not seeds_b:
         return None
     prior_a, prior_b = _priors(scores, c.a), _priors(scores, c.b)
-    shared = sorted(s for s in seeds_a & seeds_b if prior_a.get(s) and prior_a.get(s) == prior_b.get(s))
+    shared = sorted(s for s in seeds_a & seeds_b if s in prior_a and s in prior_b
+                    and same_prior(prior_a[s], prior_b[s]))
     need = max(stats.MIN_SEEDS, -(-min(len(seeds_a), len(seeds_b)) // 2))
     return shared if len(shared) >= need else None
 
