@@ -364,8 +364,10 @@ class Trainer:
     # ------------------------------------------------------------ the steps train_runs drives
     def start(self) -> None:
         """Logs open; a fresh run's demonstrations and step-0 evaluation; every env starts a fresh episode.
-        A run whose budget is already spent (killed between its last checkpoint and done.json) finishes."""
+        A run whose budget is already spent (killed between its last checkpoint and done.json) finishes. A run
+        paused at ``stop_at`` and driven again goes on from where it paused (the benches drive runs in slices)."""
         c = self.count
+        self.state = "running"
         self._open_logs()
         if not self.resumed and c.env_steps == 0:
             self._collect_demos()

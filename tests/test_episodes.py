@@ -124,6 +124,18 @@ def test_update_schedule_per_step(tmp_path, n, utd):
     assert t.updates == len(at) == int(vector_steps * n * utd)
 
 
+def test_a_paused_run_driven_again_goes_on_to_its_budget(tmp_path):
+    """run_one(stop_at=k) pauses; the same Trainer driven again continues (the benches' slices), to the end."""
+    t = Trainer(point_cfg(n=1, steps=300), tmp_path / "run", show_progress=False)
+    assert run_one(t, stop_at=100) is None and t.state == "paused"
+    paused_at = t.env_steps
+    assert 100 <= paused_at < 300
+    assert run_one(t, stop_at=200) is None and t.env_steps > paused_at
+    final = run_one(t)
+    t.env.close()
+    assert t.state == "finished" and t.env_steps == 300 and final is not None
+
+
 def test_n_env_loop_learns_the_point_task(tmp_path):
     """The batched loop trains: after learning, evaluation succeeds far more than random."""
     cfg = point_cfg(n=4, method="sac_her_per", steps=4000, random_steps=400, learning_starts=200,
