@@ -363,17 +363,17 @@ class FusedUpdate:
         for i, sac in enumerate(self.sacs):
             params, policy = self.params_of[i], self.policy_ids[i]
             # Adam skips a parameter without a gradient: a critic-only batch moves no actor or alpha
-            skip = critic_only[i]
-            for p, g in zip(params, per_agent[i]):
-                p.grad = None if skip and id(p) in policy else g
+            moves = [not (critic_only[i] and id(p) in policy) for p in params]
+            for p, g, m in zip(params, per_agent[i], moves):
+                p.grad = g if m else None
             plan = self._adam_plan(i)
             if plan is None:
                 sac.optimizer.step()
             else:
                 key, state = plan
                 lists = fused.setdefault(key, [[], [], [], [], []])
-                for p, g, st in zip(params, per_agent[i], state):
-                    if skip and id(p) in policy:
+                for p, g, st, m in zip(params, per_agent[i], state, moves):
+                    if not m:
                         continue
                     for out, t in zip(lists, (p, g, st["exp_avg"], st["exp_avg_sq"], st["step"])):
                         out.append(t)
