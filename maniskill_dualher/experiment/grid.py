@@ -59,6 +59,11 @@ def selected_arms(d: dict):
                 yield exp, arm
 
 
+def _asked_seeds(d: dict, exp: Experiment) -> List[int]:
+    """The seeds the definition lists for an experiment's kind: single-task runs, or chains and scratch."""
+    return list(d["seeds"] if exp.kind == "single" else d["chain_seeds"])
+
+
 def _seed_tasks(d: dict, exp: Experiment) -> List[str]:
     """The tasks an experiment's seeds are decided for: single-task runs per task, chains per target."""
     return list(d["tasks"] if exp.kind == "single" else d["task_order"][-1:])
@@ -77,7 +82,7 @@ def seeds_for(d: dict, exp: Experiment, arm: Arm, method: str, task: str) -> Lis
     table = d.get("arm_seeds")
     if table is not None:
         return list(range(int(table[seed_key(table, exp.name, arm.name, method, task)])))
-    seeds = list(d["seeds"] if exp.kind == "single" else d["chain_seeds"])
+    seeds = _asked_seeds(d, exp)
     caps = [c for c in (exp.max_seeds, arm.max_seeds) if c]
     return seeds[: min(caps)] if caps else seeds
 
@@ -88,7 +93,7 @@ def seed_plan(d: dict) -> List[Tuple[str, str, Tuple[int, ...], int]]:
     out = []
     table = d.get("arm_seeds")
     for exp, arm in selected_arms(d):
-        asked = len(d["seeds"] if exp.kind == "single" else d["chain_seeds"])
+        asked = len(_asked_seeds(d, exp))
         groups: Dict[str, Tuple[int, ...]] = {}
         for m, t in _arm_cells(d, exp, arm):
             key = seed_key(table, exp.name, arm.name, m, t) if table is not None else ""

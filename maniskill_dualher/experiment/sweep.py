@@ -318,10 +318,15 @@ def _main(argv: Optional[Sequence[str]], held, train: Optional[Callable], report
               + (f": not in results/{a.preset}" if table and cap == 0 else ""))
     if a.dry_run:
         for arm, group, seeds, asked in seed_plan(d):
-            n = len(seeds)
-            print(f"seeds: {arm}{' ' + group if group else ''}: {n}" + (f" ({seed_span(seeds)})" if n else "")
-                  + ((f", capped: the preset lists {asked} [seed table]" if table else
-                      f", capped: {asked} asked [max_seeds]") if n < asked else (" [seed table]" if table else "")))
+            line = f"seeds: {arm}{' ' + group if group else ''}: {len(seeds)}"
+            if seeds:
+                line += f" ({seed_span(seeds)})"
+            if len(seeds) < asked:
+                line += (f", capped: the preset lists {asked} [seed table]" if table
+                         else f", capped: {asked} asked [max_seeds]")
+            elif table:
+                line += " [seed table]"
+            print(line)
         for n in nodes:
             state = "done" if rundir.is_done(out / n.rel) else "todo"
             cells = sorted({f"{c['experiment']}/{c['arm']}" for c in n.cells})
