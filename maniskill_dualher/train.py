@@ -202,11 +202,33 @@ def run_one(run: "Trainer", stop_at: Optional[int] = None) -> Optional[dict]:
     return res["row"]
 
 
+_HEAP_FROZEN = False
+
+
+def freeze_imports() -> None:
+    """Once per process, before its first run is built: every object alive now (the imported modules of torch,
+    ManiSkill and SAPIEN, ~460k objects) goes out of the garbage collector's reach (``gc.freeze``). ManiSkill
+    calls ``gc.collect()`` when it builds and when it closes an env, and each full collection scanned them all
+    (~0.2 s, twice per run; docs/speed.md); now it scans what the runs made. Nothing that would have been freed
+    stays (modules live as long as the process), and no number changes. torch.optim imports ``torch._dynamo``
+    at an optimizer's first step anyway (its ``_disable_dynamo`` wrapper): imported here, it is frozen too."""
+    global _HEAP_FROZEN
+    if _HEAP_FROZEN:
+        return
+    import gc
+
+    import torch._dynamo  # noqa: F401
+    import maniskill_dualher.tasks  # noqa: F401  (make_env imports it: ManiSkill, SAPIEN)
+    gc.freeze()
+    _HEAP_FROZEN = True
+
+
 def train_runs(jobs: Sequence[Job], stop_at: Optional[int] = None, progress: Optional[Progress] = None,
                show_progress: bool = False) -> List[dict]:
     """Train (or resume, or return the result of) every job in this process: each job's run opened, then
     ``drive``. -> per job as ``drive``; a refused config (ConfigError before the run exists) writes nothing
     into a folder that may hold another run. A kill or interrupt leaves every run's last checkpoint standing."""
+    freeze_imports()
     results: List[Optional[dict]] = [None] * len(jobs)
     runs: List[Trainer] = []
     jobs = [Job(**j) if isinstance(j, dict) else j for j in jobs]  # the sweep's workers pass plain dicts

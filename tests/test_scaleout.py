@@ -338,3 +338,33 @@ def test_emit_commands_in_dependency_order_and_they_reproduce_the_sweep(referenc
     assert run_sweep([*CHAIN, "--out", str(out)]) == 0
     assert "3 of 3 runs already finished" in capsys.readouterr().out
     assert _tables(out) == _tables(reference)
+
+
+def test_local_backend_start_brings_up_every_worker_warm():
+    """start() spawns every worker at once, each importing the training code (train_runs([])) before any run
+    is submitted: the sweep's estimate is timed while they start (docs/speed.md)."""
+    be = backends.LocalBackend(2, entry_train_runs)
+    try:
+        be.start()
+        assert [f.result(timeout=300) for f in be._warm] == [[], []]
+        assert len(be.pool._processes) == 2
+    finally:
+        be.close()
+
+
+def test_freeze_imports_freezes_the_heap_once_per_process():
+    """train_runs freezes the imported modules out of the collector's reach once, before its first run: a
+    full collection then skips them (ManiSkill collects when it builds and closes an env); a second call
+    freezes nothing more (objects made by runs stay collectable)."""
+    code = ("import gc\n"
+            "from maniskill_dualher.train import train_runs\n"
+            "assert gc.get_freeze_count() == 0\n"
+            "train_runs([])\n"
+            "n = gc.get_freeze_count()\n"
+            "import sys; assert n > 100_000 and 'mani_skill' in sys.modules and 'torch._dynamo' in sys.modules, n\n"
+            "junk = [[i] for i in range(1000)]\n"
+            "train_runs([])\n"
+            "assert gc.get_freeze_count() == n\n"
+            "print('ok', n)\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0 and r.stdout.startswith("ok"), r.stderr[-2000:]

@@ -151,6 +151,13 @@ class LocalBackend:
         return ProcessPoolExecutor(max_workers=self.capacity, mp_context=multiprocessing.get_context("spawn"),
                                    initializer=_worker_init, initargs=(os.getpid(),))
 
+    def start(self) -> None:
+        """Start every worker now, each importing the training code (``train([])``: torch, ManiSkill, the
+        heap frozen: ``train.freeze_imports``) while the sweep process plans and prints its estimate; before,
+        the workers started only after it, ~4 s later (docs/speed.md). A warm-up that fails is not read: the
+        first run in that worker meets the same error and reports it."""
+        self._warm = [self.pool.submit(self.train, []) for _ in range(self.capacity)]
+
     def submit(self, payload):
         from concurrent.futures.process import BrokenProcessPool
         try:
@@ -189,6 +196,9 @@ class InlineBackend:
 
     def __init__(self, train: Callable):
         self.train = train
+
+    def start(self) -> None:
+        """Nothing to start: runs train in this process."""
 
     def submit(self, payload):
         try:
@@ -232,6 +242,9 @@ class RayBackend:
         self.capacity = workers or max(1, int(ray.cluster_resources().get("CPU", 1)))
         self.fn = ray.remote(num_cpus=1, max_retries=retries, retry_exceptions=False)(execute)
         self.train = train
+
+    def start(self) -> None:
+        """Nothing to start: Ray's workers start on their first task (and a cluster's may be warm)."""
 
     def submit(self, payload):
         return self.fn.remote(payload, self.train)

@@ -6,13 +6,13 @@ episode: one per ``max_episode_steps`` env steps if no episode ends early, up to
 every episode ends at once on success. The estimate gives that range.
 
 Time, per run: one SAC update of the run's network and batch size is timed here (a few dozen updates on
-random data, one torch thread, as the sweep's workers run) plus a replay-sampling overhead; every env step
-(training and evaluation, evaluation episodes taken at full length) costs an env step plus acting; and
-each run pays its setup (env construction) before its loop. Each worker process pays its imports once.
-Local wall time = the runs' core-seconds / the workers + one worker's imports. The constants are measured
-(sources beside each); ``bench/results/eta_calibration_cpuB.json`` holds the measured wall times they are
-checked against (tests/test_sweep.py). The report built at the end is not counted. On CPU simulation the
-workers share the machine's cores; a Ray cluster's cost is the core-hours.
+random data, one torch thread, as the sweep's workers run; in CPU time, as the workers start beside it)
+plus a replay-sampling overhead; every env step (training and evaluation, evaluation episodes taken at full
+length) costs an env step plus acting; and each run pays its setup (env construction) before its loop. Each
+worker process pays its imports once. Local wall time = the runs' core-seconds / the workers + one worker's
+imports. The constants are measured (sources beside each); ``bench/results/eta_calibration_cpuB.json`` holds
+the measured wall times they are checked against (tests/test_sweep.py). The report built at the end is not
+counted. On CPU simulation the workers share the machine's cores; a Ray cluster's cost is the core-hours.
 """
 from __future__ import annotations
 
@@ -89,10 +89,11 @@ def update_seconds(cfg, obs_dim: int = 43, act_dim: int = 8, iters: int = 30, pa
             step = lambda: fused.step_pack([batch] * pack, [None] * pack)  # noqa: E731
         for _ in range(5):
             step()
-        t0 = time.perf_counter()
+        # this thread's CPU time: a sweep's workers start beside it (backends.LocalBackend.start)
+        t0 = time.thread_time()
         for _ in range(iters):
             step()
-        _UPDATE_S[key] = (time.perf_counter() - t0) / iters / pack
+        _UPDATE_S[key] = (time.thread_time() - t0) / iters / pack
     finally:
         torch.set_num_threads(threads)
     return _UPDATE_S[key]

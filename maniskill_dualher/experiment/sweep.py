@@ -351,14 +351,15 @@ def _main(argv: Optional[Sequence[str]], held, train: Optional[Callable], report
         return 0
     print(f"sweep {a.preset}: {len(nodes)} runs in {out} on {a.backend} backend"
           + (f", up to {a.pack} runs per worker" if a.pack > 1 else ""), flush=True)
-    if todo_cfgs:
-        from .cost import describe, grid_cost
-        for line in describe(grid_cost(todo_cfgs, a.pack), workers or 1):
-            print(line, flush=True)
     backend = {"local": lambda: LocalBackend(workers, train), "inline": lambda: InlineBackend(train),
                "ray": lambda: RayBackend(workers, a.ray_address, train, retries=a.retries)}[a.backend]()
     cancel = True
     try:
+        if todo_cfgs:
+            backend.start()  # the workers import while the estimate below times an update
+            from .cost import describe, grid_cost
+            for line in describe(grid_cost(todo_cfgs, a.pack), workers or 1):
+                print(line, flush=True)
         failed = run_grid(nodes, out, backend, retries=a.retries, pack=a.pack)
         cancel = False
     except KeyboardInterrupt:
