@@ -209,8 +209,9 @@ def freeze_imports() -> None:
     """Once per process, before its first run is built: every object alive now (the imported modules of torch,
     ManiSkill and SAPIEN, ~460k objects) goes out of the garbage collector's reach (``gc.freeze``). ManiSkill
     calls ``gc.collect()`` when it builds and when it closes an env, and each full collection scanned them all
-    (~0.2 s, twice per run; docs/speed.md); now it scans what the runs made. Nothing that would have been freed
-    stays (modules live as long as the process), and no number changes. torch.optim imports ``torch._dynamo``
+    (~0.2 s, twice per run; docs/speed.md); now it scans what the runs made. In a sweep worker or ``train``
+    nothing else is alive yet, and modules live as long as the process, so nothing stays that would have been
+    freed (in a longer-lived process, garbage alive at the first call would); no number changes. torch.optim imports ``torch._dynamo``
     at an optimizer's first step anyway (its ``_disable_dynamo`` wrapper): imported here, it is frozen too."""
     global _HEAP_FROZEN
     if _HEAP_FROZEN:
