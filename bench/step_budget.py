@@ -143,6 +143,9 @@ def instrument() -> None:
     from maniskill_dualher import envs, pack, sac, train
     from maniskill_dualher.replay import method as rm
 
+    # a process's one-off (imports of torch._dynamo and ManiSkill, the heap frozen) is not a training step's:
+    # done here, before the clock, as the imports above are (else the first task's "driver loop" holds it)
+    train.freeze_imports()
     T = train.Trainer
     T.__init__ = timed(T.__init__, "setup")
     T.start = timed(T.start, "setup")
