@@ -15,7 +15,9 @@ Sampling:
   r, from E with probability e = 1 - r;
 * ``dual_mode="split"``: every mini-batch has round(B*r) rows from R and the rest from E.
 
-While E is empty, R serves everything. Priority updates only touch R rows.
+While E is empty, R serves everything. Priority updates only touch R rows. At ratio 1/0 the dual buffer draws
+nothing to choose, so on the same seed and settings it trains bit for bit like SAC+HER+PER (E is filled, never
+sampled; ``tests/test_e_mechanism.py``).
 """
 from __future__ import annotations
 
@@ -109,7 +111,9 @@ class DualBufferReplay(BufferMethod):
         if len(R) == 0:  # only demos so far: E is all there is
             return self._from_E(B, use_weights)
         if self.mode == "choose":
-            from_R = self.rng.random() < self.r or len(E) == 0
+            # At ratio 1/0 no draw: R serves every batch, so the random stream (HER goals, PER samples) stays
+            # SAC+HER+PER's and E off trains bit for bit like it. Below 1 the draw comes first, as it always has.
+            from_R = self.r >= 1.0 or self.rng.random() < self.r or len(E) == 0
             self._count(B, B if from_R else 0)
             if from_R:
                 return R.sample(B, self.rng, self.device, source="R")

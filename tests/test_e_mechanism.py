@@ -33,26 +33,29 @@ def _fill(m):
     m.add_episode(point_episode(T=6, N=3, seed=2))
 
 
-def test_ratio_one_zero_is_sac_her_per_but_for_one_draw_per_batch():
-    """Same R (real + hindsight rows, same priorities), same batches, except that the dual buffer's
-    "choose" draws one uniform number per batch first: the two runs are the same algorithm, not the same bits."""
+def test_ratio_one_zero_samples_what_sac_her_per_samples():
+    """Same R (real + hindsight rows, same priorities) and the same batches: at ratio 1/0 the dual buffer's
+    "choose" draws nothing, so its random stream stays SAC+HER+PER's (before issue 39 it drew one number per
+    batch and the streams parted)."""
     dual, her = _method("dual_buffer", 0, ratio=(1.0, 0.0)), _method("sac_her_per", 0)
     _fill(dual), _fill(her)
     n = len(dual.main)
-    assert n == len(her.main) and n > 0
+    assert n == len(her.main) and n > 0 and len(dual.E) > 0  # E holds the real successes, never sampled
     a, b = dual.main.storage.get(np.arange(n)), her.main.storage.get(np.arange(n))
     assert all(np.array_equal(a[k], b[k]) for k in a)
     for _ in range(20):
-        her.rng.random()  # the draw dual's "choose" makes (it always picks R at ratio 1/0)
         bd, bh = dual.sample(), her.sample()
         assert bd.handle.source == "R"
         assert torch.equal(bd.obs, bh.obs) and torch.equal(bd.reward, bh.reward)
         td = np.abs(np.random.default_rng(len(bd.obs)).normal(size=B)).astype(np.float32)
         dual.update_priorities(bd, td), her.update_priorities(bh, td)
-    # without that alignment the streams part: not bit-identical
-    d2, h2 = _method("dual_buffer", 0, ratio=(1.0, 0.0)), _method("sac_her_per", 0)
+    assert dual.rng.bit_generator.state == her.rng.bit_generator.state
+    # below 1 the draw stays (the paper arm's stream as it always was): one number before each batch
+    d2, h2 = _method("dual_buffer", 0, ratio=(0.999999, 0.000001)), _method("sac_her_per", 0)
     _fill(d2), _fill(h2)
-    assert any(not torch.equal(d2.sample().obs, h2.sample().obs) for _ in range(5))
+    for _ in range(5):
+        h2.rng.random()
+        assert torch.equal(d2.sample().obs, h2.sample().obs)
 
 
 def test_e_batches_critic_marks_only_E_batches():
@@ -154,3 +157,70 @@ def test_diagnostics_become_scores_and_a_per_arm_table():
     scores.append({**cell, "metric": "successful_train_episodes", "value": "9", "run": "r0"})
     rows = diagnostic_rows(scores)
     assert len(rows) == 1 and rows[0]["n"] == "2" and rows[0]["diag_E_qf_values"] == "2" and rows[0]["diag_R_alpha"] == ""
+
+
+# --------------------------------------------------------------------------- E off is SAC+HER+PER, bit for bit
+_E_OFF_CASE = r"""
+import hashlib, json, sys, warnings
+warnings.filterwarnings("ignore")
+from pathlib import Path
+import torch
+import maniskill_dualher.tasks  # noqa: F401
+from maniskill_dualher.experiment import overrides
+from maniskill_dualher.experiment.presets import PRESETS
+from maniskill_dualher.train import run_training
+method, task, out = sys.argv[1], sys.argv[2], Path(sys.argv[3])
+cfg = PRESETS["smoke"].single_config(method, 0, task)
+cfg.total_steps = 400
+sets = ("replay.ratio=1/0",) if method == "dual_buffer" else ()
+cfg = overrides.apply(cfg, overrides.parse_all(sets + ("max_episode_steps=25", "replay.her_k=8"))).validate()
+run_training(cfg, out, show_progress=False)
+lines = (out / "metrics.csv").read_text().splitlines()
+head = lines[0].split(",")
+rows = [dict(zip(head, l.split(","))) for l in lines[1:]]
+state = torch.load(out / "checkpoint.pt", map_location="cpu", weights_only=False)
+def digest(x, h, key=""):
+    if isinstance(x, torch.Tensor):
+        h.update(key.encode()); h.update(x.detach().contiguous().numpy().tobytes())
+    elif isinstance(x, dict):
+        for k in sorted(x, key=str):
+            digest(x[k], h, f"{key}/{k}")
+    elif isinstance(x, (list, tuple)):
+        for i, v in enumerate(x):
+            digest(v, h, f"{key}/{i}")
+    else:
+        h.update(f"{key}={x!r}".encode())
+    return h
+h = digest(state["agent"], hashlib.sha256())
+policy = torch.load(out / "policy.pt", map_location="cpu", weights_only=False)
+actor = digest(policy["actor"], hashlib.sha256()).hexdigest()
+print(json.dumps({"rows": rows, "agent": h.hexdigest(), "actor": actor,
+                  "updates": state["counters"]["updates"]}))
+"""
+
+
+def _e_off_case(method, task, tmp_path):
+    import json
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+    root = Path(__file__).resolve().parents[1]
+    r = subprocess.run([sys.executable, "-c", _E_OFF_CASE, method, task, str(tmp_path / method)],
+                       capture_output=True, text=True, env=dict(os.environ, PYTHONPATH=str(root)))
+    assert r.returncode == 0, r.stderr[-2000:]
+    return json.loads(r.stdout.strip().splitlines()[-1])
+
+
+@pytest.mark.parametrize("task", ["ReachTarget-v1", "CloseBox-v1", "CloseMicrowave-v1"])
+def test_ratio_one_zero_trains_bit_for_bit_like_sac_her_per(task, tmp_path):
+    """Issue 39: E off (ratio 1/0) is SAC+HER+PER: the same metrics (every column both write, wall time
+    aside) and the same weights (networks, optimizers, alpha; the saved actor) on the same seed. Each side
+    in a fresh process (PhysX CPU contacts are reproducible only from a fresh process)."""
+    dual, her = _e_off_case("dual_buffer", task, tmp_path), _e_off_case("sac_her_per", task, tmp_path)
+    assert her["updates"] > 100 and len(her["rows"]) >= 3
+    assert len(dual["rows"]) == len(her["rows"])
+    for rd, rh in zip(dual["rows"], her["rows"]):
+        common = (set(rd) & set(rh)) - {"wall_time_s"}
+        assert len(common) > 5 and {k: rd[k] for k in common} == {k: rh[k] for k in common}
+    assert dual["agent"] == her["agent"] and dual["actor"] == her["actor"]
