@@ -131,11 +131,17 @@ def summary_md(folder: Path, scores, tables, claims, figures: List[str], unfinis
     if unbalanced:
         s += ["Claims whose two sides are unbalanced by machine (a machine holds a different share of A's seeds "
               "than of B's; `machines_by_side` in `claims.csv`): " + ", ".join(unbalanced) + ".", ""]
-    for group, title in (("paper", "The paper's claims"), ("ablation", "Why: ablations of the adaptation stage")):
+    for group, title in (("paper", "The paper's claims"), ("ablation", "Why: ablations of the adaptation stage"),
+                         ("updates", "Total updates vs R's share (defined before their runs, issue 39)")):
         rows = [r for r in claims if r["group"] == group]
         if rows:
             s += [f"### {title}", ""] + claims_md(rows) + [""]
-    why = [r for r in claims if r["group"] == "ablation" and "diff" in r and claims_mod.explains(r["claim"])]
+    post = [r for r in claims if r.get("post_hoc")]
+    if post:
+        s += ["Defined after (some of) their data were seen (marked ‡ in the README; `post_hoc` in `claims.csv` "
+              "names the commit), each replicated on the seeds run after that commit alone (`replication`): "
+              + "; ".join(f"{r['claim']} ({r['post_hoc']}): {r['replication']}" for r in post) + ".", ""]
+    why = [r for r in claims if r["group"] != "paper" and "diff" in r and claims_mod.explains(r["claim"])]
     if why:
         s += ["### Why the dual buffer's count differs: one sentence per ablation claim", ""]
         s += [f"- {claims_mod.explains(r['claim'])} {_g(r['diff'])} [{_g(r['diff_ci95_low'])}, "

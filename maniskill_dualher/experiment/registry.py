@@ -100,17 +100,22 @@ EXPERIMENTS: Dict[str, Experiment] = {e.name: e for e in (
             doc="E off at 0.6 updates per env step: R's share of the paper arm's updates, no E batches"),
         Arm("e_critic", ("adapt.replay.e_batches=critic",),
             doc="E's batches train the critics only: no actor or alpha step on them"),
+        Arm("e_off_matched", ("adapt.replay.ratio=1/0", "adapt.sac.updates_per_step=1/0.6"),
+            doc="E off at 1/0.6 updates per env step: r_matched's update count, every update from R"),
     )),
     # The same contrasts with no prior at all: the last task from scratch (adaptation budget and settings).
     Experiment("mechanism", "Where E's cost comes from, without transfer: R's lost updates vs E's own batches",
                "scratch", methods=("dual_buffer",), arms=(
-        Arm("e_off", ("adapt.replay.ratio=1/0",), doc="E never sampled: SAC+HER+PER's algorithm"),
+        Arm("e_off", ("adapt.replay.ratio=1/0",),
+            doc="E never sampled: SAC+HER+PER bit for bit (the negative control; claims use SAC+HER+PER's runs)"),
         Arm("r_matched", ("adapt.sac.updates_per_step=1/0.6",),
             doc="1/0.6 updates per env step: R gets SAC+HER+PER's updates, E's batches on top"),
         Arm("r_starved", ("adapt.replay.ratio=1/0", "adapt.sac.updates_per_step=0.6"),
             doc="E off at 0.6 updates per env step: R's share of the paper arm's updates, no E batches"),
         Arm("e_critic", ("adapt.replay.e_batches=critic",),
             doc="E's batches train the critics only: no actor or alpha step on them"),
+        Arm("e_off_matched", ("adapt.replay.ratio=1/0", "adapt.sac.updates_per_step=1/0.6"),
+            doc="E off at 1/0.6 updates per env step: r_matched's update count, every update from R"),
     )),
     Experiment("matched_chain", "R's updates matched in every stage: does the dual buffer's prior catch up?",
                "chain", methods=("dual_buffer",), arms=(
