@@ -348,6 +348,11 @@ class Trainer:
             self.agent.load_full_state(state["agent"], networks_only=True)
         except (RuntimeError, KeyError) as e:
             raise ConfigError(f"init_from networks do not fit {self.cfg.env_id!r}: {str(e).splitlines()[0]}") from None
+        if not self.cfg.sac.resolved_learn_alpha():
+            # a fixed temperature is a setting, not learned state: this stage's alpha, whatever the prior learned
+            # (the same bits where the prior's was fixed at the same value)
+            with torch.no_grad():
+                self.agent.log_alpha.fill_(math.log(self.cfg.sac.alpha))
         if carry_replay:
             if state.get("method") is None:
                 raise ConfigError("init_from checkpoint holds no replay buffers (its run did not keep them); "

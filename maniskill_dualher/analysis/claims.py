@@ -24,7 +24,8 @@ from .paper import PAPER_TARGET
 RATE_MARGIN = 0.1      # success rates and sparse returns per episode (in [0, 1]): 10 percentage points
 COUNT_MARGIN = 0.1     # counts and env steps: 10% of the larger side's mean
 FAMILIES = {"paper": "the paper's claims (a)-(h')", "ablation": "the ablations",   # Holm/BH families
-            "updates": "total updates vs R's share (issue 39, defined before its runs)"}
+            "updates": "total updates vs R's share (issue 39, defined before its runs)",
+            "paper_regime": "the paper's own regime (issue 41, results/paper_regime/PREREGISTRATION.md)"}
 
 
 @dataclass(frozen=True)
@@ -263,6 +264,19 @@ CLAIMS: List[Claim] = [
           relative_margin=True, group="updates",
           explains="in adaptation, at an equal total of 1/0.6 updates per env step, taking E's 40% back to R "
                    "changes the count by"),
+    # ------------------------------------------------------------------ the paper's own regime (issue 41)
+    # Table 3's settings, 3.6M adaptation env steps, both methods on one SAC+HER+PER prior. Defined with
+    # results/paper_regime/PREREGISTRATION.md, before any of its runs: the primary endpoint per schedule, then
+    # the secondaries. The pilot's seeds (0-2) are reported, not counted in the confirmatory study.
+    *[Claim(f"regime_{metric_key}_{arm}", f"in the paper's regime ({what}), dual_buffer > sac_her_per: {label}",
+            paper, metric, Side("paper_regime", arm, DUAL), Side("paper_regime", arm, HER),
+            relative_margin=metric == N, group="paper_regime",
+            explains=f"in the paper's regime ({what}), dual buffer minus SAC+HER+PER, {label}, is")
+      for arm, what in (("episode", "Algorithm 1's one update per episode"), ("step", "one update per env step"))
+      for metric_key, metric, label, paper in (
+          ("count", N, "successful adaptation episodes", "Table 5: 250 vs <45 (of 24,000)"),
+          ("final", "final_eval_success_rate", "final evaluation success", ""),
+          ("curve", S, "mean evaluation success over the curve", "Fig. 5: dual buffer's curve above"))],
 ]
 
 TREND = Claim("budget_trend", "the dual buffer's count relative to sac_her_per's rises with the adaptation budget "

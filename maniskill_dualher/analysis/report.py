@@ -132,7 +132,8 @@ def summary_md(folder: Path, scores, tables, claims, figures: List[str], unfinis
         s += ["Claims whose two sides are unbalanced by machine (a machine holds a different share of A's seeds "
               "than of B's; `machines_by_side` in `claims.csv`): " + ", ".join(unbalanced) + ".", ""]
     for group, title in (("paper", "The paper's claims"), ("ablation", "Why: ablations of the adaptation stage"),
-                         ("updates", "Total updates vs R's share (defined before their runs, issue 39)")):
+                         ("updates", "Total updates vs R's share (defined before their runs, issue 39)"),
+                         ("paper_regime", "The paper's own regime (preregistered, issue 41)")):
         rows = [r for r in claims if r["group"] == group]
         if rows:
             s += [f"### {title}", ""] + claims_md(rows) + [""]

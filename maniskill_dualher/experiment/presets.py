@@ -119,6 +119,8 @@ REFERENCE_SEEDS: Dict[str, int] = {
     "warm_start:warm_low_lr": 16,
     "her_episode:paper": 0,
     "her_episode:her_episode": 32,
+    "paper_regime:episode": 0,
+    "paper_regime:step": 0,
     "regime:long": 6,
     "regime:long_episode": 12,
 }

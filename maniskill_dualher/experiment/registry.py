@@ -78,6 +78,22 @@ def _ratio_arm(r: str) -> Arm:
     return Arm(r, (f"adapt.replay.ratio={r}",), doc=f"adaptation stage samples R/E at {r}")
 
 
+# The paper's own regime (issue 41): Table 3's settings in the adaptation stage, on a prior that keeps the
+# preset's (rl-zoo-like) source stages. What cannot be Table 3's there: the networks (variant, width, tau) are
+# the prior's, so they stay the preset's (modern SAC, 64x64, tau 0.05); the temperature is fixed at 0.005
+# (train.Trainer._init_from sets it whatever the prior learned). Replay capacity 10^7 in every stage, so R
+# carries whole (it does not bind in the source stages: 12k env steps x 9 rows).
+PAPER_REGIME_SETTINGS = (
+    "replay.capacity=10000000", "replay.priority_exponent=0.5", "replay.her_k=8",
+    "adapt.total_steps=3600000",          # Table 3: 120 epochs x 200 episodes x 150 steps
+    "adapt.max_episode_steps=150", "adapt.terminate_on_success=true",
+    "adapt.sac.lr=1e-4", "adapt.sac.gamma=0.99", "adapt.sac.alpha=0.005", "adapt.sac.learn_alpha=false",
+    "adapt.sac.batch_size=256", "adapt.sac.random_steps=100000", "adapt.sac.learning_starts=100000",
+    # evaluation once per paper epoch (30,000 env steps): 10 episodes of <= 150 steps, <= 5% of the env steps
+    "adapt.eval_every=30000", "adapt.eval_episodes=10",
+    "adapt.checkpoint_every=300000",      # resume granularity: 10 epochs (~5 min of a run on CPU B)
+)
+
 EXPERIMENTS: Dict[str, Experiment] = {e.name: e for e in (
     # ------------------------------------------------------------------ the paper's experiments
     Experiment("single", "Single-task learning", "single", default=True, paper="Fig. 4"),
@@ -153,6 +169,15 @@ EXPERIMENTS: Dict[str, Experiment] = {e.name: e for e in (
         Arm(PAPER_ARM, doc="HER 'future'"),
         Arm("her_episode", ("replay.her_strategy=episode",), doc="HER 'episode' in every stage (changes the prior)"),
     ), max_seeds=8),
+    Experiment("paper_regime", "The paper's own regime: Table 3's settings, 3.6M adaptation env steps, one shared "
+               "SAC+HER+PER prior", "chain", methods="transfer", arms=(
+        Arm("episode", PAPER_REGIME_SETTINGS + ("adapt.sac.update_schedule=episode", "adapt.sac.updates_per_episode=1"),
+            prior_method="sac_her_per",
+            doc="Algorithm 1: one update per finished episode (the pilot, results/paper_regime)"),
+        Arm("step", PAPER_REGIME_SETTINGS + ("adapt.sac.update_schedule=step", "adapt.sac.updates_per_step=1"),
+            prior_method="sac_her_per",
+            doc="one update per env step (the confirmatory study's second schedule; ~3.6M updates a run)"),
+    )),
     Experiment("regime", "A longer adaptation (4x), with updates per env step or per episode", "chain",
                methods="transfer", arms=(
         Arm("long", doc="4x the adaptation budget", adapt_steps_factor=4.0),
