@@ -145,14 +145,34 @@ class Actor(nn.Module):
         mu, _ = self.net(obs).chunk(2, dim=-1)
         return torch.tanh(mu)
 
+    def bare_sample(self) -> Callable[[torch.Tensor], torch.Tensor]:
+        """``sample`` as a plain function over this actor's weights (acting in the training loop, once per env
+        step): the same ops and the same draw from ``generator`` on detached views of the parameters, so no
+        module call and no autograd graph, bit for bit (tests/test_sac.py)."""
+        layers = self._bare_layers()
+        *hidden, (w_out, b_out) = layers
+        linear, relu_, tanh, clamp, gen = F.linear, torch.relu_, torch.tanh, torch.clamp, self.generator
+
+        def sample(x: torch.Tensor) -> torch.Tensor:
+            for w, b in hidden:
+                x = relu_(linear(x, w, b))
+            mu, log_std = linear(x, w_out, b_out).chunk(2, dim=-1)
+            log_std = clamp(log_std, LOG_STD_MIN, LOG_STD_MAX)
+            return tanh(mu + log_std.exp() * normal(mu, gen))
+        return sample
+
+    def _bare_layers(self):
+        layers = [(m.weight.detach(), m.bias.detach()) for m in self.net if isinstance(m, nn.Linear)]
+        if len(layers) != sum(1 for m in self.net if not isinstance(m, nn.ReLU)):
+            raise TypeError("the bare actor knows Linear and ReLU layers only")  # mlp() builds no others
+        return layers
+
     def bare_mean_action(self) -> Callable[[torch.Tensor], torch.Tensor]:
         """``mean_action`` as a plain function over this actor's weights, for loops that act many times between
         updates (evaluation): the same ops (``F.linear``, ReLU, tanh of the mean half) on detached views of the
         same parameters, so no module call, no distribution and nothing recorded for autograd, bit for bit
         (tests/test_sac.py). The views share the parameters' memory: an in-place update shows through."""
-        layers = [(m.weight.detach(), m.bias.detach()) for m in self.net if isinstance(m, nn.Linear)]
-        if len(layers) != sum(1 for m in self.net if not isinstance(m, nn.ReLU)):
-            raise TypeError("bare_mean_action knows Linear and ReLU layers only")  # mlp() builds no others
+        layers = self._bare_layers()
         *hidden, (w_out, b_out) = layers
         n_act = w_out.shape[0] // 2
         linear, relu_, tanh = F.linear, torch.relu_, torch.tanh
@@ -215,11 +235,19 @@ class SAC(nn.Module):
             a = self.actor.mean_action(x) if deterministic else self.actor.sample(x)
         return a.cpu().numpy()
 
+    def stochastic_actor(self) -> Callable[[np.ndarray], np.ndarray]:
+        """``act(x)`` (a sampled action) for float32 numpy input without its per-call wrapping, bit for bit and
+        with the same draw from the agent's generator: the training loop's acting."""
+        f = self._numpy_fn(self.actor.bare_sample())
+        return lambda x: f(np.asarray(x, np.float32))  # act's float32 cast (a gymnasium env may give float64)
+
     def deterministic_actor(self) -> Callable[[np.ndarray], np.ndarray]:
         """``act(x, deterministic=True)`` for float32 numpy input without its per-call wrapping (module calls,
         no_grad), bit for bit: for evaluation loops. The precision switch is made per call only if this
         agent's precision is not torch's current one (the global setting, as ``act`` would leave it)."""
-        f = self.actor.bare_mean_action()
+        return self._numpy_fn(self.actor.bare_mean_action())
+
+    def _numpy_fn(self, f: Callable[[torch.Tensor], torch.Tensor]) -> Callable[[np.ndarray], np.ndarray]:
         if self.device.type == "cpu":
             g = lambda x: f(torch.from_numpy(x)).numpy()  # noqa: E731
         else:

@@ -314,6 +314,7 @@ class Trainer:
         self.method = make_method(cfg, self.spec, np.random.default_rng([cfg.seed, 1]), device=cfg.device)
         self.agent = SAC(self.spec.input_dim, self.spec.act_dim, cfg.sac, device=cfg.device,
                          init_generator=self.gen, generator=self.device_gen)
+        self._act = None  # acting's bare forward (stochastic_actor), made at the first policy action
         self.train_eps = EnvEpisodes(self.env, cfg.terminate_on_success)
         self.eval_eps = EnvEpisodes(self.env, cfg.terminate_on_success)  # its own clock and arrays
         self.count = Counters()
@@ -545,7 +546,9 @@ class Trainer:
     def _explore(self, x: np.ndarray) -> np.ndarray:
         if self.count.env_steps < self.cfg.sac.random_steps:
             return self.rng.uniform(-1.0, 1.0, (x.shape[0], self.spec.act_dim)).astype(np.float32)
-        return self.agent.act(x)
+        if self._act is None:  # bare weights (views: an update shows through), built once per run
+            self._act = self.agent.stochastic_actor()
+        return self._act(x)
 
     def _store(self, ep: Episode) -> None:
         c = self.count

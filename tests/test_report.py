@@ -419,8 +419,21 @@ def test_sides_are_paired_on_the_seeds_whose_two_sides_adapted_one_prior():
     half += [r for s in range(4) for r in rows("0.5/0.5", s, f"sw3/runs/s{s}x", 10 + s)]
     assert not claims_mod.paired(half, c)
     assert claims_mod.claim_rows(half, 200, [c])[0]["n_a"] == 6
-    # sides without source stages (scratch) are not paired
+    # chain sides whose source stages are missing are not paired
     assert not claims_mod.paired([r for r in same if r["role"] == "adapt"], c)
+    # sides from scratch pair by seed, on one kind of CPU only (issue 39)
+    sc = next(c for c in claims_mod.CLAIMS if c.key == "scratch_r_matched")
+    scratch = [_score(side.experiment, side.arm, side.method, s, 10 + s + i) for s in range(6)
+               for i, side in enumerate((sc.a, sc.b))]
+    assert claims_mod.paired_seeds(scratch, sc) == list(range(6))
+    row = claims_mod.claim_rows(scratch, 200, [sc])[0]
+    assert row["paired"] == "yes" and row["pair_corr"] == pytest.approx(1.0)
+    mixed = [{**r, "machine": "CPU A"} if r["seed"] in "0123" and r["arm"] == "paper" else r for r in scratch]
+    assert claims_mod.paired_seeds(mixed, sc) is None  # 2 of 6 seeds on one CPU kind: fewer than half
+    # a side with a prior and one without never pair by seed
+    h = next(c for c in claims_mod.CLAIMS if c.key == "h")
+    assert not claims_mod.paired([_score(side.experiment, side.arm, side.method, s, s) for s in range(6)
+                                  for side in (h.a, h.b)], h)
 
 
 def test_a_run_identity_drops_its_sweeps_prefix():
@@ -490,7 +503,7 @@ def test_mechanism_and_budget_claims_read_not_measured_until_their_runs_exist():
     for key in ("scratch_e_off", "scratch_e_batches", "scratch_r_updates", "scratch_e_on_starved",
                 "adapt_r_updates", "adapt_e_on_starved", "matched_prior", "matched_a", "matched_gain"):
         assert rows[key]["verdict"] == "not measured (runs missing)", key
-    assert rows["budget_trend"]["verdict"].startswith("not measured (needs >= 3 budgets")
+    assert "budget_trend" not in rows  # not a claim since issue 39 (budget.csv and fig8 describe the curve)
 
 
 def test_mechanism_claims_on_synthetic_scores():
@@ -499,7 +512,10 @@ def test_mechanism_claims_on_synthetic_scores():
     level = {("mechanism", "e_off", "dual_buffer"): 100, ("scratch", "paper", "sac_her_per"): 100,
              ("mechanism", "r_matched", "dual_buffer"): 100, ("mechanism", "r_starved", "dual_buffer"): 60,
              ("scratch", "paper", "dual_buffer"): 60}
-    scores = [_score(e, a, m, s, v + rng.normal(0, 3)) for (e, a, m), v in level.items() for s in range(16)]
+    noise = {(cell, s): rng.normal(0, 3) for cell in level for s in range(16)}
+    for s in range(16):  # E off is SAC+HER+PER bit for bit (issue 39): the same value on every seed
+        noise[(("mechanism", "e_off", "dual_buffer"), s)] = noise[(("scratch", "paper", "sac_her_per"), s)]
+    scores = [_score(e, a, m, s, v + noise[((e, a, m), s)]) for (e, a, m), v in level.items() for s in range(16)]
     keys = ("scratch_e_off", "scratch_e_batches", "scratch_r_updates", "scratch_e_on_starved")
     rows = {r["claim"]: r for r in claims_mod.claim_rows(scores, 1000, [c for c in claims_mod.CLAIMS
                                                                        if c.key in keys])}
@@ -508,7 +524,9 @@ def test_mechanism_claims_on_synthetic_scores():
     assert rows["scratch_e_batches"]["verdict"].startswith("no difference larger than")
     assert rows["scratch_r_updates"]["verdict"] == "contradicted"
     assert rows["scratch_e_on_starved"]["verdict"].startswith("no difference larger than")
-    assert all(r["paired"] == "no" for r in rows.values())      # from scratch: no prior to share
+    assert all(r["paired"] == "yes" for r in rows.values())     # from scratch, one CPU kind: paired by seed
+    e_off = rows["scratch_e_off"]  # the negative control reads exactly 0
+    assert (e_off["diff"], e_off["diff_ci95_low"], e_off["diff_ci95_high"]) == (0.0, 0.0, 0.0)
 
 
 def test_budget_trend_and_curve_on_synthetic_scores(tmp_path):

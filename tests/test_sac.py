@@ -112,3 +112,29 @@ def test_the_bare_deterministic_actor_is_act_bit_for_bit(variant, hidden, precis
     old = act(xs[2]).copy()
     agent.update(b)
     assert act(xs[2]).tobytes() == agent.act(xs[2], deterministic=True).tobytes() != old.tobytes()
+
+
+@pytest.mark.parametrize("variant,hidden,precision", [("paper", (32, 32), "highest"), ("modern", (64, 64), "medium"),
+                                                       ("modern", (16, 24, 8), "bf16")])
+def test_the_bare_stochastic_actor_is_act_bit_for_bit(variant, hidden, precision):
+    """SAC.stochastic_actor (the training loop's acting) gives act(x)'s bits and leaves the agent's generator where
+    act(x) leaves it, before and after an update."""
+    def pair(seed):
+        g = torch.Generator().manual_seed(seed)
+        cfg = SACConfig(variant=variant, hidden=hidden, matmul_precision=precision, batch_size=32)
+        return SAC(11, 3, cfg, generator=g, init_generator=g), g
+    (a1, g1), (a2, g2) = pair(5), pair(5)
+    act = a2.stochastic_actor()
+    rng = np.random.default_rng(0)
+    xs = [rng.normal(size=(m, 11)).astype(np.float32) * s for m, s in ((1, 1.0), (3, 1.0), (256, 1.0), (4, 50.0))]
+    for x in xs:
+        want, got = a1.act(x), act(x)
+        assert got.dtype == np.float32 and got.tobytes() == want.tobytes()
+        assert torch.equal(g1.get_state(), g2.get_state())
+    assert act(xs[0]).tobytes() != act(xs[0]).tobytes()  # a sample, not the mean
+    g1.set_state(g2.get_state())
+    for agent, g in ((a1, g1), (a2, g2)):
+        b = Batch(torch.randn(32, 11, generator=g), torch.rand(32, 3, generator=g) * 2 - 1, torch.zeros(32),
+                  torch.randn(32, 11, generator=g), torch.zeros(32))
+        agent.update(b)
+    assert act(xs[2]).tobytes() == a1.act(xs[2]).tobytes()

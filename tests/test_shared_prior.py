@@ -123,3 +123,29 @@ def test_shared_prior_sweep_end_to_end(tmp_path):
         rows = {r["claim"]: r for r in csv.DictReader(f)}
     assert rows["shared_a"]["n_a"] == "1" and rows["shared_a"]["n_b"] == "1"
     assert rows["shared_prior"]["verdict"] == "not measured (runs missing)"  # no transfer/paper dual buffer here
+
+
+def test_a_stage_with_a_fixed_temperature_starts_at_its_own_alpha(tmp_path):
+    """paper_regime adapts a prior that learned its temperature with Table 3's fixed alpha 0.005: the stage's
+    alpha is the setting, not the prior's learned value (and it stays there)."""
+    import math
+
+    import torch
+
+    import maniskill_dualher.tasks  # noqa: F401
+    from maniskill_dualher.experiment import overrides
+    from maniskill_dualher.experiment.presets import PRESETS
+    from maniskill_dualher.rundir import load_checkpoint
+    from maniskill_dualher.train import train_chain
+
+    src = PRESETS["smoke"].single_config("sac_her_per", 0, "ReachTarget-v1")
+    src = overrides.apply(src, overrides.parse_all(("sac.variant=modern", "total_steps=200"))).validate()
+    stages = protocol.make_stages(src, ["ReachTarget-v1", "CloseMicrowave-v1"], [200, 150])
+    stages[-1] = overrides.apply(stages[-1], overrides.parse_all(
+        ("sac.learn_alpha=false", "sac.alpha=0.005", "sac.learning_starts=50", "sac.random_steps=50"))).validate()
+    train_chain(stages, tmp_path / "chain", carry_replay=True, show_progress=False)
+    d0, d1 = protocol.transfer_chain_dirs(tmp_path / "chain", stages, carry_replay=True)
+    learned = load_checkpoint(d0)["agent"]["networks"]["log_alpha"]
+    fixed = load_checkpoint(d1)["agent"]["networks"]["log_alpha"]
+    assert float(learned) != pytest.approx(math.log(0.005), abs=1e-4)  # the prior learned another value
+    assert torch.equal(fixed, torch.tensor(math.log(0.005)))

@@ -341,6 +341,14 @@ def _prior_method(side: Side) -> str:
     return (arm.prior_method if arm is not None and arm.prior_method else side.method)
 
 
+def _without_prior(side: Side) -> bool:
+    """The side's runs start from nothing: single-task runs, or a scratch experiment's (the registry says)."""
+    from ..experiment.registry import EXPERIMENTS  # plain data: no torch, no simulator
+
+    exp = EXPERIMENTS.get(side.experiment)
+    return side.role == "single" or (exp is not None and exp.kind == "scratch")
+
+
 def run_identity(run: str) -> str:
     """A run folder without its sweep's prefix: from its last ``runs`` component on (``runs/chain/<method>-s<seed>/
     stage0-...-<config hash>``), the same for one config and seed in every sweep it was trained in."""
@@ -378,7 +386,7 @@ def paired_seeds(scores: Sequence[Dict[str, str]], c: Claim) -> Optional[List[in
     if not seeds_a or not seeds_b:
         return None
     prior_a, prior_b = _priors(scores, c.a), _priors(scores, c.b)
-    if not prior_a and not prior_b and c.a.role == c.b.role:
+    if _without_prior(c.a) and _without_prior(c.b):
         # Both sides without a prior (from scratch, or single-task): a run's seed fixes its initial networks,
         # its random stream and every episode's reset seed, so the same seed on both sides starts both from the
         # same point, and pairing by seed is decided before any outcome is read. On one kind of CPU only
