@@ -6,7 +6,7 @@
 
 The run is ``python -m maniskill_dualher.train --preset paper --task TASK --method METHOD --total-steps N
 --out TMP --no-progress`` in a fresh process whose PYTHONPATH is the tree measured (default: this one). A small
-wrapper around ``rundir.RunFolder.save_checkpoint`` and ``train.Trainer.start`` (public on both sides) records,
+wrapper around ``train.Trainer.save_checkpoint`` and ``train.Trainer.start`` (on both sides) records,
 from ``/proc/self/status``: VmRSS when the run starts its loop (imports done, env and networks built: the
 process's baseline), VmRSS and VmHWM (the peak so far) on entering and leaving every checkpoint write with the
 rows stored in its replay, and ``ru_maxrss`` at exit. The peak before the final checkpoint is VmHWM on entering
@@ -43,20 +43,19 @@ def status(key):
                 return int(line.split()[1]) * 1024
     return None
 
-from maniskill_dualher import rundir, train
+from maniskill_dualher import train
 
 events, start = [], {}
-_save = rundir.RunFolder.save_checkpoint
+_save = train.Trainer.save_checkpoint
 
-def save(self, state, keep_previous=True):
-    m = state.get('method')
-    rows = None if m is None else {k: int(b['storage']['size']) for k, b in m['buffers'].items()}
+def save(self, replay=True):
+    rows = {k: len(b) for k, b in self.method.buffers.items()} if replay else None
     ev = {'rows': rows, 'rss_before': status('VmRSS'), 'hwm_before': status('VmHWM'), 't_before': time.time()}
-    _save(self, state, keep_previous)
+    _save(self, replay)
     ev.update(rss_after=status('VmRSS'), hwm_after=status('VmHWM'), t_after=time.time())
     events.append(ev)
 
-rundir.RunFolder.save_checkpoint = save
+train.Trainer.save_checkpoint = save
 _start = train.Trainer.start
 
 def start_(self):
@@ -121,7 +120,7 @@ def _git_short(tree: Path) -> str:
 
 
 def _mb(b) -> float:
-    return round(b / 2**20, 1) if b is not None else None
+    return round(b / 1e6, 1) if b is not None else None  # MB (10^6 bytes), as experiment/cost.py
 
 
 def measure_run(tree: Path, task: str, method: str, steps: int, preset: str) -> dict:
