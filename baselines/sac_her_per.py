@@ -23,6 +23,11 @@ class SACHerPerReplay(BufferMethod):
         self._buffer("R", prioritized=True)
         self._real_success = np.zeros(self.main.storage.capacity, bool)  # per R slot: a real reward-1 row
 
+    @classmethod
+    def replay_layout(cls, cfg):
+        """R: each env step's real row and its k hindsight copies, prioritized; 1 byte per row marks real successes."""
+        return {"R": (1.0 + cfg.replay.her_k, True, np.dtype(bool).itemsize)}
+
     def add_episode(self, ep: Episode) -> None:
         self._check_goal_episode(ep)
         rows = episode_transitions(ep, self.rcfg.her_strategy, self.rcfg.her_k, self.rng, self.reward_fn)

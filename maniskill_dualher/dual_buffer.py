@@ -51,6 +51,12 @@ class DualBufferReplay(BufferMethod):
         self._rows_from_R = 0
         self._batches_from_R = 0  # choose mode: whole batches from R
 
+    @classmethod
+    def replay_layout(cls, cfg):
+        """R: each env step's real row and its k hindsight copies, prioritized. E: real rows only, at most one per
+        env step (in practice ~1% of them are successes: an upper bound)."""
+        return {"R": (1.0 + cfg.replay.her_k, True, 0), "E": (1.0, False, 0)}
+
     @property
     def E(self):
         return self.buffers["E"]

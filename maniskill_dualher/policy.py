@@ -8,6 +8,9 @@ takes to rebuild and use it without the training code's replay, critics or optim
     env_id, control_mode, max_episode_steps, terminate_on_success, config (the run's RunConfig dict),
     env_steps, eval_success (the evaluation it was saved at)
 
+Only tensors and plain Python, so ``load_policy`` reads it with ``torch.load(weights_only=True)``: a policy file
+from someone else runs no code when loaded, and one holding any other object is refused (one line naming it).
+
 ``load_policy(run_dir_or_file)`` rebuilds the actor with sac.py's own ``Actor`` class, so
 ``Policy.act(x)`` is bit-identical to the training agent's ``agent.act(x, deterministic=True)``
 (tests/test_evaluate.py). Actions come back in [-1, 1]^A: the env wrapper (envs.BatchEnv.step) scales them
@@ -24,7 +27,7 @@ import torch
 
 from .config import ConfigError
 from .fileio import atomic_torch_save
-from .rundir import POLICY, POLICY_BEST
+from .rundir import POLICY, POLICY_BEST, load_torch_file
 from .sac import Actor, matmul_precision
 
 POLICY_FORMAT = 1
@@ -134,10 +137,7 @@ def resolve_policy_path(path_or_run_dir: PathLike, best: bool = False) -> Path:
 def load_policy(path_or_run_dir: PathLike, best: bool = False) -> Policy:
     """Load a policy file, or a run folder's ``policy.pt`` (``best``: ``policy_best.pt``), on the CPU."""
     path = resolve_policy_path(path_or_run_dir, best)
-    try:
-        d = torch.load(path, map_location="cpu", weights_only=False)
-    except Exception as e:  # truncated, or not a torch file
-        raise ConfigError(f"unreadable policy file {path}: {type(e).__name__}") from None
+    d = load_torch_file(path, "policy file")  # weights_only: a shared file runs no code; other objects refused
     if not isinstance(d, dict) or "actor" not in d or "input_dim" not in d:
         raise ConfigError(f"{path} is not a policy file (a checkpoint? use its run folder's policy.pt)")
     hidden = tuple(int(h) for h in d["hidden"])

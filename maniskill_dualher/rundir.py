@@ -137,11 +137,95 @@ def differing_keys(a: dict, b: dict, prefix: str = "") -> List[str]:
     return out
 
 
-def load_checkpoint(run_dir: PathLike) -> dict:
-    """A run folder's checkpoint: checkpoint.pt, or, when that is missing or unreadable, the previous one
-    (checkpoint.prev.pt) with one warning line on stderr. ConfigError if neither can be read."""
-    import torch  # only where a run happens: the analysis reads folders without torch
+# --------------------------------------------------------------------------- the checkpoint file's contents
+# A checkpoint file holds only tensors and plain Python (dicts, lists, tuples, numbers, strings, None), so it
+# loads with ``torch.load(weights_only=True)``: reading one executes no code from it. Checkpoints written before
+# that held the replay as pickled numpy arrays; they load under weights_only=True too, with numpy's array
+# reconstruction (and nothing else) allowed (``_numpy_array_globals``). A file holding any other object is
+# refused, whatever folder it is in.
 
+def file_state(obj):
+    """``obj`` as a checkpoint file holds it: numpy arrays as tensors sharing their memory (``torch.from_numpy``,
+    no copy: torch.save's zip writer streams their bytes as they are, where pickling an array copies it, several
+    times over; the peak of a large replay's checkpoint was 2.5 KB per stored row), numpy scalars as Python
+    numbers; dicts, lists and tuples recursed, anything else as is."""
+    import numpy as np
+    import torch
+    if isinstance(obj, np.ndarray):
+        if obj.dtype == object:
+            raise TypeError("a checkpoint cannot hold an object array")
+        return torch.from_numpy(obj if obj.flags.writeable else obj.copy())
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, dict):
+        return {k: file_state(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return type(obj)(file_state(v) for v in obj)
+    return obj
+
+
+def array_state(obj):
+    """The numpy side of ``file_state``, for state that lives in numpy (the replay): tensors back as numpy arrays
+    sharing their memory (``.numpy()``, the same bits); numpy arrays (an older checkpoint's) and everything else
+    as they are; dicts, lists and tuples recursed."""
+    import torch
+    if isinstance(obj, torch.Tensor):
+        return obj.numpy()
+    if isinstance(obj, dict):
+        return {k: array_state(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return type(obj)(array_state(v) for v in obj)
+    return obj
+
+
+def _numpy_array_globals() -> list:
+    """What an older checkpoint's pickled numpy arrays (and scalars) need, under both numpy module names."""
+    import numpy as np
+    try:
+        from numpy._core import multiarray
+    except ImportError:  # numpy < 2
+        from numpy.core import multiarray
+    out = [bytes, np.ndarray, np.dtype, multiarray._reconstruct, multiarray.scalar]
+    out += [(f, f"numpy.core.multiarray.{f.__name__}") for f in (multiarray._reconstruct, multiarray.scalar)]
+    out += [(f, f"numpy._core.multiarray.{f.__name__}") for f in (multiarray._reconstruct, multiarray.scalar)]
+    out += [type(np.dtype(t)) for t in ("f4", "f8", "i8", "i4", "u1", "?")]  # numpy.dtypes.*DType
+    return out
+
+
+def load_torch_file(path: PathLike, what: str) -> object:
+    """``torch.load(path, weights_only=True)`` on the CPU (numpy arrays allowed, see above). Raises
+    ``ConfigError`` naming the file: "refused" when it holds other objects (their names), "unreadable" when it
+    is not a torch file or is cut short."""
+    import pickle
+
+    import torch
+
+    from .config import ConfigError
+    try:
+        with torch.serialization.safe_globals(_numpy_array_globals()):
+            return torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as e:  # weights_only found an object it does not load
+        try:
+            names = torch.serialization.get_unsafe_globals_in_checkpoint(path)
+        except Exception:
+            names = []
+        allowed = {n if isinstance(g, tuple) else f"{g.__module__}.{g.__qualname__}"
+                   for g in _numpy_array_globals() for n in ([g[1]] if isinstance(g, tuple) else [None])}
+        names = [n for n in names if n not in allowed]
+        if names:
+            shown = ", ".join(names[:3]) + (", ..." if len(names) > 3 else "")
+            raise ConfigError(f"refused {what} {path}: it holds objects other than tensors and plain data "
+                              f"({shown}); loading it would run code from the file") from None
+        raise ConfigError(f"unreadable {what} {path}: {type(e).__name__}") from None
+    except Exception as e:  # a truncated or foreign file
+        raise ConfigError(f"unreadable {what} {path}: {type(e).__name__}") from None
+
+
+def load_checkpoint(run_dir: PathLike) -> dict:
+    """A run folder's checkpoint: checkpoint.pt, or, when that is missing, unreadable or refused, the previous
+    one (checkpoint.prev.pt) with one warning line on stderr. ConfigError if neither can be read. Loaded with
+    ``weights_only=True`` (``load_torch_file``); a new checkpoint's replay arrays come back as tensors, which
+    ``array_state`` turns back into numpy arrays."""
     from .config import ConfigError
     latest, prev = Path(run_dir) / CHECKPOINT, Path(run_dir) / CHECKPOINT_PREV
     if not latest.is_file() and not prev.is_file():
@@ -151,9 +235,9 @@ def load_checkpoint(run_dir: PathLike) -> dict:
         if not path.is_file():
             continue
         try:
-            state = torch.load(path, map_location="cpu", weights_only=False)
-        except Exception as e:  # a truncated or foreign file
-            problem = problem or f"unreadable checkpoint {path}: {type(e).__name__}"
+            state = load_torch_file(path, "checkpoint")
+        except ConfigError as e:
+            problem = problem or str(e)
             continue
         if path == prev:
             print(f"warning: {problem or f'missing checkpoint {latest}'}; resuming from {prev.name}",
@@ -217,13 +301,14 @@ class RunFolder:
         return load_checkpoint(self.path)
 
     def save_checkpoint(self, state: dict, keep_previous: bool = True) -> None:
-        """checkpoint.pt, written atomically; the one it replaces becomes checkpoint.prev.pt (``keep_previous``)
-        or is dropped (a finished run, which nobody resumes mid-way)."""
+        """checkpoint.pt (``state`` as ``file_state`` makes it: tensors and plain data), written atomically; the one
+        it replaces becomes checkpoint.prev.pt (``keep_previous``) or is dropped (a finished run, which nobody
+        resumes mid-way)."""
         from .fileio import atomic_torch_save
         latest, prev = self.path / CHECKPOINT, self.path / CHECKPOINT_PREV
         if keep_previous and latest.is_file():
             os.replace(latest, prev)  # until the new one lands, the loader falls back to prev
-        atomic_torch_save(state, latest)
+        atomic_torch_save(file_state(state), latest)
         if not keep_previous and prev.is_file():
             prev.unlink()
 

@@ -42,7 +42,7 @@ from .episodes import EnvEpisodes, Score
 from .pack import Updater
 from .policy import save_policy
 from .replay.base import Episode
-from .rundir import POLICY, POLICY_BEST, RunFolder, load_checkpoint
+from .rundir import POLICY, POLICY_BEST, RunFolder, array_state, load_checkpoint
 from .sac import SAC
 
 DEMO_SEED_BASE = 2_000_000_000
@@ -358,12 +358,14 @@ class Trainer:
             if state.get("method") is None:
                 raise ConfigError("init_from checkpoint holds no replay buffers (its run did not keep them); "
                                   "rerun it, or transfer without carrying replay")
-            self.method.load_transfer_state(state["method"])
+            self.method.load_transfer_state(array_state(state["method"]))
             self.method.on_transfer()
             self.method.reseed(np.random.default_rng([self.cfg.seed, 1]))  # keep this run's own sampling stream
 
     # ------------------------------------------------------------ checkpoint
     def _state(self) -> dict:
+        """Everything a resume needs. The replay's arrays are views of the live buffers, not copies (the
+        checkpoint file streams them, ``rundir.file_state``): write it before the next step."""
         state = {"config": self.cfg.to_dict(), "agent": self.agent.full_state(), "method": self.method.state_dict(),
                  "counters": self.count.state_dict(), "rows": self.rows, "diag": self.diag.state_dict(),
                  "rng": self.rng.bit_generator.state,
@@ -374,7 +376,7 @@ class Trainer:
 
     def _restore(self, state: dict) -> None:
         self.agent.load_full_state(state["agent"])
-        self.method.load_state_dict(state["method"])
+        self.method.load_state_dict(array_state(state["method"]))  # the replay lives in numpy
         self.count = Counters.from_state(state["counters"])
         self.rows = list(state["rows"])
         self.diag.load_state_dict(state.get("diag"))

@@ -125,6 +125,43 @@ def test_state_dict_round_trip_gives_identical_future_batches(method):
     assert m.stats() == fresh.stats()
 
 
+@pytest.mark.parametrize("method", sorted(METHODS))
+def test_checkpoint_file_keeps_the_replay_bit_identical_and_loads_weights_only(method, tmp_path):
+    """A checkpoint file (rundir.RunFolder.save_checkpoint) holds the replay as tensors of its filled rows only:
+    it loads with torch.load(weights_only=True) (nothing but tensors and plain data), and the replay it restores
+    (rundir.array_state) has the same bytes, priorities and future batches as the one written."""
+    from maniskill_dualher import rundir
+    m = _filled(method, seed=5)
+    for k in range(3):
+        b = m.sample()
+        m.update_priorities(b, np.random.default_rng(k).random(32))
+    m.main.storage._data["obs"][0, :3] = [np.nan, -0.0, np.float32(1e-45)]  # bits, not values, must survive
+    rundir.RunFolder(tmp_path).save_checkpoint({"method": m.state_dict()})
+    path = tmp_path / rundir.CHECKPOINT
+    assert torch.serialization.get_unsafe_globals_in_checkpoint(str(path)) == []
+    state = torch.load(path, weights_only=True)["method"]
+    for name, buf in m.buffers.items():
+        data = state["buffers"][name]["storage"]["data"]
+        assert all(isinstance(v, torch.Tensor) and v.shape[0] == len(buf) for v in data.values())  # filled rows only
+    fresh = make_method(_cfg(method), spec(), np.random.default_rng(999))
+    fresh.load_state_dict(rundir.array_state(state))
+    for name, buf in m.buffers.items():
+        other = fresh.buffers[name]
+        for f, arr in buf.storage._data.items():
+            assert arr[:len(buf)].tobytes() == other.storage._data[f][:len(other)].tobytes()
+        if buf.prioritized:
+            assert buf.sampler.tree.tree.tobytes() == other.sampler.tree.tree.tobytes()
+    if method == "sac_her_per":
+        assert np.array_equal(m.real_success_rows(), fresh.real_success_rows())
+    for step in range(10):
+        a, c = m.sample(), fresh.sample()
+        for f in ("obs", "action", "reward", "next_obs", "done"):
+            assert getattr(a, f).numpy().tobytes() == getattr(c, f).numpy().tobytes()
+        td = np.random.default_rng(step).random(32)
+        m.update_priorities(a, td)
+        fresh.update_priorities(c, td)
+
+
 def test_vanilla_sac_on_plain_and_goal_envs():
     m = make_method(_cfg("sac"), spec(goal=False), np.random.default_rng(0))
     ep = point_episode()

@@ -158,6 +158,30 @@ def test_load_policy_bad_input(tmp_path, trained):
         load_policy(trained["out"] / "checkpoint.pt")
 
 
+class _Marker:
+    """Unpickling it would create a file: a shared policy file must not run code when loaded."""
+
+    def __init__(self, path):
+        self.path = str(path)
+
+    def __reduce__(self):
+        return (Path.touch, (Path(self.path),))
+
+
+def test_a_policy_file_holding_another_object_is_refused(tmp_path, trained):
+    """load_policy reads with torch.load(weights_only=True): a policy file is tensors and plain data (every one
+    written loads so, the committed ones too); one that also pickles an arbitrary object is refused in one line
+    naming it, and the object's code never runs."""
+    d = torch.load(trained["out"] / "policy.pt", weights_only=True)
+    torch.save(dict(d, note=_Marker(tmp_path / "ran")), tmp_path / "policy.pt")
+    with pytest.raises(ConfigError, match="refused policy file") as e:
+        load_policy(tmp_path)
+    assert "\n" not in str(e.value) and "pathlib.Path" in str(e.value) and not (tmp_path / "ran").exists()
+    r = cli(tmp_path, "--episodes", "1")
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "refused policy file" in r.stderr
+    assert not (tmp_path / "ran").exists()
+
+
 # --------------------------------------------------------------------------- evaluation
 def test_evaluation_replays_the_runs_own_evaluation(trained):
     """Same seeds, same policy, same episode rules: evaluate's episodes are the training evaluation's, state for
@@ -377,7 +401,7 @@ def test_committed_policies_are_small_documented_and_load():
                                                                                       p.parent.name)
         h = doc["held_out_evaluation"]
         assert int(h["seeds"].split("..")[0]) == HELDOUT_SEED_BASE and h["successes"] <= h["episodes"]
-        assert "checkpoint" not in pol.meta and set(torch.load(p, weights_only=False)) >= {"actor", "input_dim"}
+        assert "checkpoint" not in pol.meta and set(torch.load(p, weights_only=True)) >= {"actor", "input_dim"}
 
 
 def test_a_committed_policy_evaluates_on_held_out_seeds():

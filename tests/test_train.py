@@ -255,3 +255,53 @@ def test_an_unreadable_checkpoint_falls_back_to_the_previous_one(tmp_path, capfd
     assert {k: v for k, v in resumed.items() if k != "wall_time_s"} == \
         {k: v for k, v in straight.items() if k != "wall_time_s"}
     assert not (tmp_path / "b" / "checkpoint.prev.pt").exists()
+
+
+class _Marker:
+    """An object whose unpickling would write a file: what a refused checkpoint or policy file must not do."""
+
+    def __init__(self, path):
+        self.path = str(path)
+
+    def __reduce__(self):
+        return (Path.touch, (Path(self.path),))
+
+
+def test_checkpoint_loads_weights_only_and_an_older_one_resumes_the_same(tmp_path):
+    """checkpoint.pt holds only tensors and plain data (torch.load(weights_only=True), no allowlist); a checkpoint
+    written before that (the replay as pickled numpy arrays) still resumes, to the same metrics as an uninterrupted
+    run; a checkpoint holding any other object is refused in one line, and the object's code never runs."""
+    import torch
+
+    from maniskill_dualher import rundir
+    cfg = tiny(method="sac_her_per", steps=200)
+    straight = run_training(cfg, tmp_path / "a", show_progress=False)
+    assert run_training(cfg, tmp_path / "b", show_progress=False, stop_at=100) is None
+    ckpt = tmp_path / "b" / "checkpoint.pt"
+    assert torch.serialization.get_unsafe_globals_in_checkpoint(str(ckpt)) == []
+    state = torch.load(ckpt, weights_only=True)
+    assert isinstance(state["method"]["buffers"]["R"]["storage"]["data"]["obs"], torch.Tensor)
+    # the same checkpoint as the code before wrote it: the replay's arrays pickled as numpy arrays
+    old = dict(state, method=_copy_arrays(rundir.array_state(state["method"])))
+    torch.save(old, ckpt)
+    assert "numpy.ndarray" in torch.serialization.get_unsafe_globals_in_checkpoint(str(ckpt))
+    resumed = run_training(cfg, tmp_path / "b", show_progress=False)
+    assert {k: v for k, v in resumed.items() if k != "wall_time_s"} == \
+        {k: v for k, v in straight.items() if k != "wall_time_s"}
+    assert read_rows(tmp_path / "a" / "metrics.csv") == read_rows(tmp_path / "b" / "metrics.csv")
+    # a foreign object: refused (no previous checkpoint to fall back to), its code not run
+    assert run_training(cfg, tmp_path / "c", show_progress=False, stop_at=100) is None
+    torch.save(dict(state, extra=_Marker(tmp_path / "ran")), tmp_path / "c" / "checkpoint.pt")
+    with pytest.raises(ConfigError, match="refused checkpoint") as e:
+        run_training(cfg, tmp_path / "c", show_progress=False)
+    assert "\n" not in str(e.value) and "pathlib.Path" in str(e.value) and not (tmp_path / "ran").exists()
+
+
+def _copy_arrays(obj):
+    """Owned numpy copies of every array in a nested state (what the old state_dict held)."""
+    import numpy as np
+    if isinstance(obj, np.ndarray):
+        return obj.copy()
+    if isinstance(obj, dict):
+        return {k: _copy_arrays(v) for k, v in obj.items()}
+    return obj

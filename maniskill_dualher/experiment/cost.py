@@ -13,12 +13,26 @@ worker process pays its imports once. Local wall time = the runs' core-seconds /
 imports. The constants are measured (sources beside each); ``bench/results/eta_calibration_cpuB.json`` holds
 the measured wall times they are checked against (tests/test_sweep.py). The report built at the end is not
 counted. On CPU simulation the workers share the machine's cores; a Ray cluster's cost is the core-hours.
+
+Memory, per run: its replay at its end (each buffer min(capacity, the rows its env steps offer it: x (1 + her_k)
+for R of the HER methods, x 1 for SAC's and for the dual buffer's E, an upper bound on its real reward-1 rows),
+the rows of the earlier chain stages it carries counted in) x bytes per row (``replay_row_bytes``: the transition's
+floats, the sum tree's, the method's own per-row arrays), its networks with their gradients and Adam moments
+(``network_bytes``), and, while it starts from a replay (a carried parent's, or its own checkpoint on a resume),
+that replay once more as read from the file. A worker adds its process (imports, env, episode arrays) once and
+``RUN_BYTES`` per further run of its pack. ``plan_memory`` fits the sweep's workers x runs per worker into the
+memory this machine has available (``available_memory``), packing fewer runs per worker, then using fewer workers,
+or refusing when one run alone does not fit.
 """
 from __future__ import annotations
 
+import math
+import os
 import time
 from dataclasses import dataclass
-from typing import Callable, Dict, List, Optional, Tuple
+from typing import Callable, Dict, List, Optional, Sequence, Tuple
+
+from ..config import ConfigError
 
 # One env step of our tasks, one thread: 0.87 ms on CPU B (CloseMicrowave, facts 2026-12-03), 0.98 ms on CPU A
 # (py-spy of a quick run, facts 2026-12-02), 0.94-1.04 ms on CPU C (bench/env_speed.py: 961-1063 steps/s).
@@ -145,3 +159,200 @@ def describe(cost: Cost, workers: int) -> List[str]:
         f"{rng(lambda s: _dur(local_wall_seconds(s, cost.runs, workers)))}",
         f"  a Ray cluster: {rng(lambda s: f'{s / 3600:,.0f} core-hours')} (wall time = that / its CPUs)",
     ]
+
+
+# --------------------------------------------------------------------------- memory
+# A worker process running one run, beyond that run's replay and networks (imports of torch, SAPIEN and
+# ManiSkill, the run's SAPIEN scene, episode arrays, the update's workspace): one paper-preset SAC+HER+PER run on
+# CloseMicrowave, CPU B, at 1c79b93, resident memory minus its replay (rows x ``replay_row_bytes``, 401 B) and
+# networks (``network_bytes``, 6 MB) at 10k, 20k and 30k env steps: 548-552 MB; 555-556 MB in a second process at
+# 20k-60k (``bench/run_memory.py`` measures a whole run's peak; 0.49 GB of it before the first step).
+PROCESS_BYTES = 560_000_000
+# Each further run in the same worker (a pack): its env, episode arrays, evaluation and update buffers. Four such
+# runs packed at 30k env steps: 597 MB beyond their replays and networks, one alone 552 MB: 15 MB per further run.
+RUN_BYTES = 15_000_000
+MEMORY_ENV = "MANISKILL_DUALHER_MEMORY_BYTES"  # pretend this machine has this many bytes available (tests)
+SUM_TREE_NODE_BYTES = 8  # float64; a leaf per row, and its share of the internal nodes above: n/2 + n/4 + ... = n
+
+
+def replay_row_bytes(obs_dim: int = 43, act_dim: int = 8, prioritized: bool = True, extra: int = 0) -> int:
+    """Bytes one stored row holds: the transition's fields (``replay.buffer.transition_fields``: observation ‖
+    goal twice, action, reward, done), a prioritized buffer's sum tree (a leaf and, on average, one internal node
+    per row) and ``extra`` (a method's own per-row arrays). 43 inputs and 8 actions: our tasks' layout: 384 B
+    uniform, 400 B prioritized (401 B with SAC+HER+PER's mark). A bare prioritized buffer grows by 400 B per row
+    between 300k and 1.5M rows (bench/run_memory.py, CPU B); below that a fixed ~20 MB more, numpy's transparent
+    huge pages (each array region in use ends in a partly used 2 MiB page), which ``PROCESS_BYTES`` holds."""
+    import numpy as np
+
+    from ..replay.buffer import transition_fields
+    row = sum(int(np.prod(shape, dtype=np.int64)) * np.dtype(dtype).itemsize
+              for shape, dtype in transition_fields(obs_dim, act_dim).values())
+    return row + (2 * SUM_TREE_NODE_BYTES if prioritized else 0) + int(extra)
+
+
+_NET_BYTES: Dict[tuple, int] = {}
+
+
+def network_bytes(sac_cfg, obs_dim: int = 43, act_dim: int = 8) -> int:
+    """The agent's networks (targets included) as float32, plus a gradient and Adam's two moments of every trained
+    parameter: counted on a ``sac.SAC`` built here (once per network shape)."""
+    key = (tuple(sac_cfg.hidden), sac_cfg.variant, obs_dim, act_dim)
+    if key not in _NET_BYTES:
+        import torch
+
+        from ..sac import SAC
+        g = torch.Generator().manual_seed(0)
+        agent = SAC(obs_dim, act_dim, sac_cfg, device="cpu", generator=g, init_generator=g)
+        every = sum(t.numel() * t.element_size() for t in agent.state_dict().values())
+        trained = sum(p.numel() * p.element_size() for p in agent.parameters() if p.requires_grad)
+        _NET_BYTES[key] = every + 3 * trained
+    return _NET_BYTES[key]
+
+
+@dataclass
+class RunMemory:
+    """One run's memory plan (bytes): its replay at its end, its networks, the replay it reads at its start."""
+    label: str
+    rows: Dict[str, int]          # rows each buffer holds at the run's end (capped at the capacity)
+    row_bytes: Dict[str, int]     # bytes per row of each buffer
+    network_bytes: int
+    loaded_bytes: int = 0         # a replay read from a file at its start (held twice while it loads)
+
+    @property
+    def replay_bytes(self) -> int:
+        return sum(self.rows[k] * self.row_bytes[k] for k in self.rows)
+
+    @property
+    def resident(self) -> int:
+        """What it holds in its worker while it trains (beyond the process and ``RUN_BYTES``)."""
+        return self.replay_bytes + self.network_bytes
+
+    @property
+    def peak(self) -> int:
+        """Alone in a worker: the process, its replay and networks, and a replay being loaded."""
+        return PROCESS_BYTES + self.resident + self.loaded_bytes
+
+    def explain(self) -> str:
+        parts = [f"{k} {self.rows[k]:,} rows x {self.row_bytes[k]} B" for k in self.rows]
+        text = f"replay {' + '.join(parts)}, networks {_size(self.network_bytes)}"
+        if self.loaded_bytes:
+            text += f", {_size(self.loaded_bytes)} of replay read at its start"
+        return text + f", process {_size(PROCESS_BYTES)}"
+
+
+def run_memory(cfg, carried: Sequence = (), resume: bool = False, obs_dim: int = 43, act_dim: int = 8,
+               label: str = "") -> RunMemory:
+    """The memory plan of a run of ``cfg`` that starts with the replay of the chain stages ``carried`` (their
+    configs, in order), or from its own checkpoint (``resume``: its replay read at the start, counted at its
+    end size)."""
+    from ..methods import method_spec
+    cls = method_spec(cfg.method).load()
+    layout = getattr(cls, "replay_layout", None) or (  # a method without the hook: one prioritized buffer
+        lambda c: {"R": (1.0 + (c.replay.her_k if getattr(cls, "uses_goals", False) else 0), True, 0)})
+    cap = int(cfg.replay.capacity)
+    rows: Dict[str, int] = {}
+    before: Dict[str, int] = {}
+    sizes: Dict[str, int] = {}
+    for name, (per_step, prioritized, extra) in layout(cfg).items():
+        # the carried stages' rows as this method would hold them: their env steps at their settings (her_k)
+        old = sum(s.total_steps * layout(s).get(name, (1.0,))[0] for s in carried)
+        before[name] = min(cap, int(math.ceil(old)))
+        rows[name] = min(cap, int(math.ceil(old + cfg.total_steps * per_step)))
+        sizes[name] = replay_row_bytes(obs_dim, act_dim, prioritized, extra)
+    mem = RunMemory(label or f"{cfg.method} {cfg.env_id}", rows, sizes, network_bytes(cfg.sac, obs_dim, act_dim))
+    at_start = rows if resume else before
+    mem.loaded_bytes = sum(at_start[k] * sizes[k] for k in rows)
+    return mem
+
+
+def node_memory(node, resume: bool = False) -> RunMemory:
+    """``run_memory`` of a grid node (``grid.Node``): a chain stage that carries replay counts its earlier stages."""
+    carried = node.stages[:node.stage] if node.stages is not None and node.carry_replay else ()
+    return run_memory(node.cfg, carried, resume, label=node.rel)
+
+
+def sweep_peak(mems: Sequence[RunMemory], workers: int, pack: int) -> int:
+    """Bytes at once when ``workers`` workers each train up to ``pack`` runs side by side: the largest runs that
+    can be alive together, each worker's process and further runs, and one replay being read per worker (a pack's
+    runs start one after the other)."""
+    n = len(mems)
+    if n == 0:
+        return 0
+    w = max(1, min(workers, n))
+    s = max(1, min(pack, -(-n // w)))
+    alive = sorted((m.resident for m in mems), reverse=True)[:w * s]
+    loading = sorted((m.loaded_bytes for m in mems), reverse=True)[:w]
+    return sum(alive) + sum(loading) + w * (PROCESS_BYTES + (s - 1) * RUN_BYTES)
+
+
+def available_memory() -> Tuple[Optional[int], str]:
+    """(bytes this machine has available, where that number comes from); (None, why) when unknown."""
+    pretend = os.environ.get(MEMORY_ENV)
+    if pretend:
+        try:
+            return int(float(pretend)), MEMORY_ENV
+        except ValueError:
+            raise ConfigError(f"{MEMORY_ENV} must be a number of bytes, got {pretend!r}") from None
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024, "MemAvailable"
+    except OSError:
+        pass
+    return None, "unknown (no /proc/meminfo)"
+
+
+@dataclass
+class MemoryPlan:
+    workers: int
+    pack: int
+    peak: int                     # bytes at once with these workers and runs per worker
+    available: Optional[int]
+    source: str
+    note: Optional[str] = None    # one line when the plan had to shrink
+
+
+def plan_memory(mems: Sequence[RunMemory], workers: int, pack: int,
+                available: Optional[int] = None, source: str = "") -> MemoryPlan:
+    """The most runs per worker (then workers) up to ``pack`` (``workers``) whose peak fits in ``available``.
+    ConfigError (one line naming the numbers) when even one run alone does not fit."""
+    peak = sweep_peak(mems, workers, pack)
+    if available is None or not mems or peak <= available:
+        return MemoryPlan(workers, pack, peak, available, source)
+    big = max(mems, key=lambda m: m.peak)
+    if big.peak > available:
+        raise ConfigError(f"one run needs ~{_size(big.peak)} at its peak ({big.explain()}; {big.label}) but this "
+                          f"machine has {_size(available)} available ({source}): lower replay.capacity, or run it "
+                          f"on a machine with more memory")
+    for w in range(workers, 0, -1):
+        for s in range(pack, 0, -1):
+            p = sweep_peak(mems, w, s)
+            if p <= available:
+                what = f"{s} run{'s' if s > 1 else ''} per worker (not {pack})" if s != pack else f"{s} runs per worker"
+                if w != workers:
+                    what += f" on {w} worker{'s' if w > 1 else ''} (not {workers})"
+                note = (f"memory: {what}, so that the sweep's peak ~{_size(p)} fits in the {_size(available)} "
+                        f"available ({source}); {workers} x {pack} would need ~{_size(peak)}")
+                return MemoryPlan(w, s, p, available, source, note)
+    raise AssertionError("one run fits, so one worker with one run fits")  # pragma: no cover
+
+
+def describe_memory(mems: Sequence[RunMemory], plan: MemoryPlan) -> List[str]:
+    if not mems:
+        return []
+    big = max(mems, key=lambda m: m.peak)
+    small = min(m.peak for m in mems)
+    span = _size(big.peak) if small == big.peak else f"{_size(small)} to {_size(big.peak)}"
+    avail = "unknown" if plan.available is None else f"{_size(plan.available)} ({plan.source})"
+    return [f"estimated peak memory (an estimate, not a measurement): one run {span} (the largest: {big.explain()}); "
+            f"the sweep with {plan.workers} worker{'s' if plan.workers > 1 else ''} x up to {plan.pack} "
+            f"run{'s' if plan.pack > 1 else ''} each at once: {_size(plan.peak)}; available: {avail}"]
+
+
+def _size(b: float) -> str:
+    if b >= 1e9:
+        return f"{b / 1e9:.1f} GB"
+    if b >= 1e6:
+        return f"{b / 1e6:.0f} MB"
+    return f"{b / 1e3:.0f} kB"

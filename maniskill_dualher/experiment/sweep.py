@@ -257,6 +257,29 @@ def write_cells(nodes: List[Node], out: Path) -> None:
             rundir.write_json(path, new)
 
 
+def plan_sweep_memory(todo: List[Node], out: Path, backend: str, workers: Optional[int], pack: int, local: bool):
+    """(each unfinished run's memory plan, the sweep's ``cost.MemoryPlan``): on this machine (a local pool, inline,
+    or a Ray instance started here) the workers and runs per worker shrink to fit its available memory, and a run
+    that alone does not fit is refused (ConfigError); on a Ray cluster the plan is only described."""
+    from .cost import MemoryPlan, available_memory, node_memory, plan_memory
+    mems = [node_memory(n, resume=(out / n.rel / rundir.CHECKPOINT).is_file()
+                        or (out / n.rel / rundir.CHECKPOINT_PREV).is_file()) for n in todo]
+    w = 1 if backend == "inline" else (workers or 1)
+    if not local:
+        from .cost import sweep_peak
+        return mems, MemoryPlan(w, pack, sweep_peak(mems, w, pack), None, "a Ray cluster's nodes")
+    available, source = available_memory()
+    return mems, plan_memory(mems, w, pack, available, source)
+
+
+def memory_lines(memory) -> List[str]:
+    if memory is None:
+        return []
+    from .cost import describe_memory
+    mems, plan = memory
+    return describe_memory(mems, plan) + ([plan.note] if plan.note else [])
+
+
 def main(argv: Optional[Sequence[str]] = None, train: Optional[Callable] = None,
          report: Optional[Callable] = None) -> int:
     """The sweep. ``train``: the training driver (``train.train_runs``) its workers call; ``report``: the
@@ -302,6 +325,14 @@ def _main(argv: Optional[Sequence[str]], held, train: Optional[Callable], report
             raise ConfigError("--emit-commands and --dry-run: choose one")
         if train is None and not (a.dry_run or a.emit_commands):
             raise ConfigError("no training driver given: run python -m maniskill_dualher.sweep")
+        workers = a.workers or (None if a.ray_address else min(2, os.cpu_count() or 1))
+        todo = [n for n in nodes if not rundir.is_done(out / n.rel)]
+        pack, memory = a.pack, None
+        if not a.emit_commands:  # what this machine's workers hold at once: fewer per worker, or refused
+            memory = plan_sweep_memory(todo, out, a.backend, workers, a.pack, local=not a.ray_address)
+            pack = memory[1].pack
+            if memory[1].note and a.backend != "inline":
+                workers = memory[1].workers
         check_out_folder(out, d, a.force)
         if not a.dry_run:  # one sweep per folder; then look again, now that no other sweep can write it
             held.enter_context(FolderLock(out))
@@ -309,8 +340,7 @@ def _main(argv: Optional[Sequence[str]], held, train: Optional[Callable], report
     except ConfigError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    workers = a.workers or (None if a.ray_address else min(2, os.cpu_count() or 1))
-    todo_cfgs = [n.cfg for n in nodes if not rundir.is_done(out / n.rel)]
+    todo_cfgs = [n.cfg for n in todo]
     table = d.get("arm_seeds") is not None
     of = (lambda n: f"of the preset's {n} seeds (seed table)") if table else (lambda n: f"of the {n} seeds asked")
     for arm, cap, asked in capped:  # never a silent cut
@@ -333,8 +363,10 @@ def _main(argv: Optional[Sequence[str]], held, train: Optional[Callable], report
             print(f"{state}  {n.rel}  [{', '.join(cells)}]")
         if todo_cfgs:
             from .cost import describe, grid_cost
-            for line in describe(grid_cost(todo_cfgs, a.pack), workers or 1):
+            for line in describe(grid_cost(todo_cfgs, pack), workers or 1):
                 print(line)
+        for line in memory_lines(memory):
+            print(line)
         total = sum(c.total_steps for c in todo_cfgs)
         print(f"{len(nodes)} runs; {total} env steps to go; nothing written (--dry-run)")
         return 0
@@ -350,7 +382,9 @@ def _main(argv: Optional[Sequence[str]], held, train: Optional[Callable], report
             print(f"  level {i}: lines {lv[0]}-{lv[-1]} ({len(lv)} runs)")
         return 0
     print(f"sweep {a.preset}: {len(nodes)} runs in {out} on {a.backend} backend"
-          + (f", up to {a.pack} runs per worker" if a.pack > 1 else ""), flush=True)
+          + (f", up to {pack} runs per worker" if pack > 1 else ""), flush=True)
+    for line in memory_lines(memory):
+        print(line, flush=True)
     backend = {"local": lambda: LocalBackend(workers, train), "inline": lambda: InlineBackend(train),
                "ray": lambda: RayBackend(workers, a.ray_address, train, retries=a.retries)}[a.backend]()
     cancel = True
@@ -358,9 +392,9 @@ def _main(argv: Optional[Sequence[str]], held, train: Optional[Callable], report
         if todo_cfgs:
             backend.start()  # the workers import while the estimate below times an update
             from .cost import describe, grid_cost
-            for line in describe(grid_cost(todo_cfgs, a.pack), workers or 1):
+            for line in describe(grid_cost(todo_cfgs, pack), workers or 1):
                 print(line, flush=True)
-        failed = run_grid(nodes, out, backend, retries=a.retries, pack=a.pack)
+        failed = run_grid(nodes, out, backend, retries=a.retries, pack=pack)
         cancel = False
     except KeyboardInterrupt:
         print("interrupted: rerun the same command to resume", file=sys.stderr)

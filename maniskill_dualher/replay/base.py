@@ -78,6 +78,9 @@ class ReplayMethod(Protocol):
     accepts_demos: bool  # whether add_demo_episode seeds a buffer (the dual buffer's E)
     def add_demo_episode(self, ep: Episode) -> None: ...  # scripted-solver episode; no-op default
     def reseed(self, rng: np.random.Generator) -> None: ...  # new sampling stream after loading another run's replay
+    # (a classmethod) per buffer: (most rows one env step adds, prioritized, the method's own bytes per row), for
+    # the sweep's memory plan (experiment/cost.py); replay/method.py's BufferMethod gives one uniform buffer
+    def replay_layout(cls, cfg) -> Dict[str, Any]: ...
 
 
 def goal_input(obs: np.ndarray, goal: np.ndarray) -> np.ndarray:

@@ -5,7 +5,7 @@ batch leaves them (``sample``); everything else lives here.
 """
 from __future__ import annotations
 
-from typing import Dict, Optional
+from typing import Dict, Optional, Tuple
 
 import numpy as np
 
@@ -31,6 +31,13 @@ class BufferMethod:
         self.batch_size = int(cfg.sac.batch_size)
         self.buffers: Dict[str, ReplayBuffer] = {}
         self._uniform = UniformSampler()
+
+    @classmethod
+    def replay_layout(cls, cfg) -> Dict[str, Tuple[float, bool, int]]:
+        """What a run's memory plan needs (``experiment/cost.py``), without building anything: per buffer, (the
+        most rows one env step adds to it, whether it is prioritized, bytes per row of the method's own per-row
+        arrays). A method with other buffers overrides this."""
+        return {"R": (1.0, False, 0)}
 
     # ------------------------------------------------------------------ helpers
     def _buffer(self, name: str, prioritized: bool) -> ReplayBuffer:

@@ -119,8 +119,9 @@ class PrioritizedSampler:
         self.beta = self.beta0 + (1.0 - self.beta0) * f
 
     def state_dict(self) -> dict:
+        """The written leaves (a view of the tree, as ``RingStorage.state_dict``'s arrays), the settings in use."""
         return {
-            "leaves": self.tree.tree[self.tree.P:self.tree.P + self._high].copy(),
+            "leaves": self.tree.tree[self.tree.P:self.tree.P + self._high],
             "max_priority": self.max_priority,
             "max_value": self.tree.max_value,
             "beta": self.beta,

@@ -75,13 +75,15 @@ class RingStorage:
 
     # ----------------------------------------------------------------- checkpoint
     def state_dict(self) -> dict:
-        """Only the filled part (rows 0..size-1) plus the write cursor."""
+        """Only the filled part (rows 0..size-1) plus the write cursor. The arrays are views of the storage, not
+        copies (a checkpoint of 10^7 rows would double the replay's memory): save or load the state before the
+        next ``add``."""
         return {
             "capacity": self.capacity,
             "cursor": self._cursor,
             "size": self._size,
             "fields": {k: (tuple(v.shape[1:]), v.dtype.str) for k, v in self._data.items()},
-            "data": {k: v[:self._size].copy() for k, v in self._data.items()},
+            "data": {k: v[:self._size] for k, v in self._data.items()},
         }
 
     def load_state_dict(self, state: dict) -> None:

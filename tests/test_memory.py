@@ -1,0 +1,136 @@
+"""Memory: the cost model's per-run peak (replay rows x bytes per row, networks, process), the sweep fitting its
+workers and packs into the machine's available memory (or refusing in one line), and the bytes per row against a
+bare buffer. Fast: nothing learns. (The checkpoint's own memory and format: tests/test_dual_buffer.py,
+tests/test_train.py; a whole run's peak: bench/run_memory.py.)"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from maniskill_dualher.config import ConfigError, ReplayConfig, RunConfig
+from maniskill_dualher.experiment import backends, cost
+from maniskill_dualher.experiment.cost import (MEMORY_ENV, PROCESS_BYTES, plan_memory, replay_row_bytes, run_memory,
+                                               sweep_peak)
+from maniskill_dualher.experiment.sweep import main as sweep_main
+
+
+def _cfg(method="sac_her_per", steps=100_000, capacity=10_000_000, her_k=4) -> RunConfig:
+    cfg = RunConfig(method=method, total_steps=steps, replay=ReplayConfig(capacity=capacity, her_k=her_k))
+    return cfg.validate()
+
+
+def test_bytes_per_row_follow_the_row_layout():
+    # observation ‖ goal (43 floats) twice, action (8), reward, done: float32; a sum tree adds a leaf and, on
+    # average, one internal node (float64) per row; SAC+HER+PER marks its real successes with one byte per row
+    assert replay_row_bytes(43, 8, prioritized=False) == (2 * 43 + 8 + 2) * 4 == 384
+    assert replay_row_bytes(43, 8, prioritized=True) == 384 + 16
+    assert run_memory(_cfg("sac_her_per")).row_bytes == {"R": 401}
+    assert run_memory(_cfg("dual_buffer")).row_bytes == {"R": 400, "E": 384}
+    assert run_memory(_cfg("sac")).row_bytes == {"R": 384}
+
+
+def test_a_bare_buffer_grows_by_the_formula_per_row():
+    """Resident growth of a 10^6-capacity prioritized buffer between 100k and 400k rows (a fixed ~20 MB of huge-page
+    rounding comes before) is replay_row_bytes per row, within 5%."""
+    from maniskill_dualher.replay.buffer import make_buffer
+
+    def rss():
+        with open("/proc/self/status") as f:
+            return next(int(ln.split()[1]) * 1024 for ln in f if ln.startswith("VmRSS:"))
+    rng = np.random.default_rng(0)
+    n = 1000
+    rows = {"obs": rng.random((n, 43), np.float32), "action": rng.random((n, 8), np.float32),
+            "reward": np.zeros(n, np.float32), "next_obs": rng.random((n, 43), np.float32), "done": np.zeros(n, np.float32)}
+    buf = make_buffer(1_000_000, 43, 8, prioritized=True, replay_cfg=ReplayConfig())
+    at = {}
+    for target in (100_000, 400_000):
+        while len(buf) < target:
+            buf.add(rows)
+        at[target] = rss()
+    per_row = (at[400_000] - at[100_000]) / 300_000
+    assert per_row == pytest.approx(replay_row_bytes(43, 8, prioritized=True), rel=0.05)
+
+
+def test_the_estimate_grows_with_capacity_and_her_k():
+    base = run_memory(_cfg(steps=100_000, capacity=1_000_000, her_k=4))
+    assert base.rows == {"R": 500_000}  # 100k env steps x (1 + k): under the capacity
+    assert run_memory(_cfg(steps=100_000, capacity=300_000, her_k=4)).rows == {"R": 300_000}  # capped
+    more_k = run_memory(_cfg(steps=100_000, capacity=1_000_000, her_k=8))
+    assert more_k.rows == {"R": 900_000} and more_k.peak > base.peak
+    bigger = run_memory(_cfg(steps=1_000_000, capacity=10_000_000, her_k=4))
+    assert bigger.peak > base.peak
+    assert bigger.peak == PROCESS_BYTES + 5_000_000 * 401 + bigger.network_bytes
+    assert run_memory(_cfg("sac", steps=100_000, capacity=1_000_000)).rows == {"R": 100_000}  # no relabels
+    # the dual buffer's E: its real reward-1 rows, at most one per env step
+    assert run_memory(_cfg("dual_buffer", steps=100_000, capacity=1_000_000)).rows == {"R": 500_000, "E": 100_000}
+
+
+def test_a_carried_stage_counts_its_parents_rows_and_reads_them_at_its_start():
+    source, adapt = _cfg(steps=100_000, her_k=8), _cfg(steps=50_000, her_k=8)
+    alone = run_memory(adapt)
+    carried = run_memory(adapt, carried=[source])
+    assert carried.rows == {"R": 150_000 * 9} and alone.rows == {"R": 50_000 * 9}
+    assert carried.loaded_bytes == 100_000 * 9 * 401 and alone.loaded_bytes == 0
+    resumed = run_memory(adapt, resume=True)  # its own checkpoint, counted at its end size
+    assert resumed.loaded_bytes == resumed.replay_bytes
+
+
+def test_plan_shrinks_packs_then_workers_then_refuses():
+    mems = [run_memory(_cfg(steps=200_000, capacity=1_000_000), label=f"r{i}") for i in range(16)]
+    full = sweep_peak(mems, 2, 8)
+    assert full == 16 * mems[0].resident + 2 * (PROCESS_BYTES + 7 * cost.RUN_BYTES)
+    assert plan_memory(mems, 2, 8, full, "test").note is None  # fits as asked
+    two = sweep_peak(mems, 2, 2)
+    plan = plan_memory(mems, 2, 8, two + 1, "test")
+    assert (plan.workers, plan.pack) == (2, 2) and plan.peak == two <= two + 1
+    assert plan.note.startswith("memory: 2 runs per worker (not 8)") and "\n" not in plan.note
+    one = sweep_peak(mems, 1, 1)
+    plan = plan_memory(mems, 2, 8, one, "test")
+    assert (plan.workers, plan.pack) == (1, 1) and "on 1 worker (not 2)" in plan.note
+    with pytest.raises(ConfigError, match=r"one run needs ~.* at its peak \(replay R 1,000,000 rows x 401 B"):
+        plan_memory(mems, 2, 8, one - 1, "test")
+
+
+def _smoke_args(out, *extra):
+    return ["--preset", "smoke", "--tasks", "ReachTarget-v1", "--experiments", "single", "--out", str(out), *extra]
+
+
+def test_a_pretend_small_machine_refuses_the_sweep_in_one_line(tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv(MEMORY_ENV, str(100_000_000))  # 100 MB: not even one worker's process
+    out = tmp_path / "o"
+    for extra in ((), ("--dry-run",)):
+        assert sweep_main(_smoke_args(out, *extra), train=lambda *a, **k: pytest.fail("trained")) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith("error: one run needs ~") and "100 MB available" in err[0], err
+        assert MEMORY_ENV in err[0]
+        assert not out.exists()
+    monkeypatch.setenv(MEMORY_ENV, "lots")
+    assert sweep_main(_smoke_args(out, "--dry-run")) == 2
+    assert "MANISKILL_DUALHER_MEMORY_BYTES must be a number of bytes, got 'lots'" in capsys.readouterr().err
+
+
+def test_a_plan_that_fits_with_fewer_runs_per_worker_is_packed_smaller(tmp_path, capsys, monkeypatch):
+    from maniskill_dualher.experiment.grid import build_grid
+    from maniskill_dualher.experiment.sweep import definition_from_args, make_parser
+    out = tmp_path / "o"
+    nodes = build_grid(definition_from_args(make_parser().parse_args(_smoke_args(out))))
+    mems = [cost.node_memory(n) for n in nodes]
+    assert len(mems) >= 4
+    monkeypatch.setenv(MEMORY_ENV, str(sweep_peak(mems, 2, 2)))  # 2 workers fit with 2 runs each, not 8
+    assert sweep_main(_smoke_args(out, "--workers", "2", "--dry-run")) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert any(ln.startswith("estimated peak memory") and "2 workers x up to 2 runs each" in ln for ln in lines)
+    assert [ln for ln in lines if ln.startswith("memory:")] == [ln for ln in lines if "runs per worker (not 8)" in ln]
+    assert not out.exists()
+    seen = {}
+
+    def fake_run_grid(nodes, out, backend, retries, pack, **kw):
+        seen["pack"] = pack
+        return []
+    monkeypatch.setattr(backends, "run_grid", fake_run_grid)
+    monkeypatch.setattr(backends.LocalBackend, "start", lambda self: None)
+    monkeypatch.setattr(backends.LocalBackend, "close", lambda self, cancel=False: None)
+    monkeypatch.setattr(cost, "update_seconds", lambda c, pack=1, **kw: 1e-3)
+    assert sweep_main(_smoke_args(out, "--workers", "2", "--no-report"), train=lambda *a, **k: None) == 0
+    assert seen["pack"] == 2
+    assert any(ln.startswith("memory: 2 runs per worker (not 8)") for ln in capsys.readouterr().out.splitlines())
