@@ -503,6 +503,36 @@ def test_run_grid_parents_first_failures_block_descendants(tmp_path, capsys):
     assert "final eval success 0.50, successful training episodes 3" in out
 
 
+def test_a_sweep_in_which_no_run_finishes_ends_with_one_line_exit_1(tmp_path):
+    """Every run fails, for a real cause (each run folder's provenance.json is a folder, so no run can record
+    its start): the sweep ends with one line on stderr saying how many runs did not finish and the command
+    that retries them, exit 1, no traceback, no report. That command, once the cause is gone, finishes them."""
+    import shlex
+    out = tmp_path / "none"
+    args = ["--preset", "smoke", "--experiments", "single", "--tasks", "ReachTarget-v1", "--methods", "sac",
+            "--seeds", "2", "--out", str(out)]
+    rels = [ln.split()[1] for ln in _cli(*args, "--dry-run").stdout.splitlines() if ln.startswith("todo ")]
+    assert len(rels) == 2
+    for rel in rels:
+        (out / rel / rundir.PROVENANCE).mkdir(parents=True)
+    r = _cli(*args)
+    assert r.returncode == 1, r.stderr[-3000:]
+    assert "Traceback" not in r.stderr + r.stdout
+    err = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert [ln for ln in err if ln.startswith("error:")] == err[-1:], err[-5:]
+    again = "python -m maniskill_dualher.sweep " + shlex.join(args)
+    assert err[-1].startswith("error: 2 of 2 runs did not finish (first: runs/single/") and "no run finished" in err[-1]
+    assert err[-1].endswith(f"rerun the same command to retry them: {again}"), err[-1]
+    assert r.stdout.count("FAILED") == 2 and all((out / rel / rundir.ERROR).is_file() for rel in rels)
+    assert not (out / "summary.md").exists() and not (out / "scores.csv").exists()
+    for rel in rels:
+        (out / rel / rundir.PROVENANCE).rmdir()
+    r = subprocess.run([sys.executable, *shlex.split(again)[1:]], cwd=REPO, env=_env(), capture_output=True,
+                       text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert all(rundir.is_done(out / rel) for rel in rels) and (out / "summary.md").is_file()
+
+
 def _fresh_copy(dst: Path) -> Path:
     """The repository as a fresh clone sees it: tracked and unignored files, committed in a new git repo."""
     files = subprocess.run(["git", "ls-files", "-co", "--exclude-standard"], cwd=REPO, capture_output=True,
