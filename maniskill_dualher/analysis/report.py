@@ -275,6 +275,9 @@ def report(folder, resamples: int = 10_000, reference: Optional[Path] = None,
             raise ConfigError(f"no such folder: {folder}")
         name = folder.name or st.folder.name
         has_runs = (folder / rundir.RUNS_DIR).exists() or any(folder.rglob(rundir.CONFIG))
+        if not has_runs and not ((folder / SCORES).is_file() and (folder / CURVES).is_file()):
+            raise ConfigError(f"{folder} holds no finished runs and no {SCORES}/{CURVES}: nothing to report "
+                              f"(0 unfinished runs)")  # before a copy of a folder that is not a report's
         if merge is not None and has_runs:
             raise ConfigError(f"{folder} holds run folders: merge into a results folder built from scores alone")
         out = st.begin(whole=not has_runs, read=(SCORES, CURVES))
