@@ -4,13 +4,17 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 import shutil
+import signal
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from maniskill_dualher import report
+from maniskill_dualher import report, staging
 from maniskill_dualher.analysis import claims as claims_mod
 from maniskill_dualher.config import TASKS, ReplayConfig, RunConfig
 
@@ -347,9 +351,9 @@ def _provenance(folder: Path, model: str, bf16: bool) -> None:
             {"starts": [{"cpu": {"model": model, "avx512_bf16": bf16, "amx_bf16": False, "avx2": True}}]}))
 
 
-def test_merge_adds_another_sweeps_cells_with_their_machine(folder, tmp_path, capsys):
-    """A reference made on one CPU gets the cells of a later sweep made on another: the claims see both
-    sides, each row says its machine, run names say their sweep; overlapping cells or other budgets refuse."""
+def _merge_pair(folder: Path, tmp_path: Path):
+    """A shipped reference (from ``folder``'s runs, made on CPU A) and another sweep ``more`` (single-task
+    ReachTarget runs of two methods, made on CPU B) with the same budgets: what ``--merge`` joins."""
     _provenance(folder, "CPU A", True)
     other = tmp_path / "more"
     for seed, v in enumerate([1.0, 2.0, 3.0]):
@@ -364,6 +368,13 @@ def test_merge_adds_another_sweeps_cells_with_their_machine(folder, tmp_path, ca
     ref = _shipped(folder, tmp_path / "reference", SWEEP)
     report.build_report(other)
     (other / "sweep.json").write_text(json.dumps({**SWEEP, "experiments": ["single"]}))
+    return ref, other
+
+
+def test_merge_adds_another_sweeps_cells_with_their_machine(folder, tmp_path, capsys):
+    """A reference made on one CPU gets the cells of a later sweep made on another: the claims see both
+    sides, each row says its machine, run names say their sweep; overlapping cells or other budgets refuse."""
+    ref, other = _merge_pair(folder, tmp_path)
     n_before = len(_table(ref / "scores.csv"))
     assert report.main([str(ref), "--merge", str(other)]) == 0
     scores = _table(ref / "scores.csv")
@@ -374,10 +385,18 @@ def test_merge_adds_another_sweeps_cells_with_their_machine(folder, tmp_path, ca
     assert claims["a"]["machines"] == "CPU A (avx512_bf16)"
     assert json.loads((ref / "sweep.json").read_text())["merged"][0]["folder"] == "more"
     assert "CPU B (avx2): single" in (ref / "summary.md").read_text()
-    # again: the same cells are there now -> refused, nothing written
-    before = {p: p.read_bytes() for p in ref.rglob("*") if p.is_file()}
+    # the same merge again: its cells are there and the report is complete -> one line, nothing written
+    before = {p: (p.read_bytes(), p.stat().st_ino) for p in ref.rglob("*") if p.is_file()}
     capsys.readouterr()
-    assert report.main([str(ref), "--merge", str(other)]) == 2
+    assert report.main([str(ref), "--merge", str(other)]) == 0
+    out = capsys.readouterr().out.strip().splitlines()
+    assert len(out) == 1 and "already holds the 6 runs of" in out[0] and "nothing written" in out[0], out
+    assert {p: (p.read_bytes(), p.stat().st_ino) for p in ref.rglob("*") if p.is_file()} == before
+    # another sweep holding those cells -> refused, nothing written
+    before = {p: p.read_bytes() for p in ref.rglob("*") if p.is_file()}
+    again = tmp_path / "again"
+    shutil.copytree(other, again)
+    assert report.main([str(ref), "--merge", str(again)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "already has cell single/paper/" in err[0]
     # a sweep with other budgets -> refused
@@ -387,6 +406,100 @@ def test_merge_adds_another_sweeps_cells_with_their_machine(folder, tmp_path, ca
     # into a folder with run folders -> refused
     assert report.main([str(folder), "--merge", str(other)]) == 2
     assert {p: p.read_bytes() for p in ref.rglob("*") if p.is_file()} == before
+
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _report_cli(args, kill=None, exchange=True) -> subprocess.CompletedProcess:
+    """``python -m maniskill_dualher.report ARGS`` in a fresh process that SIGKILLs itself at the point
+    ``kill`` (``staging.kill_point``); ``exchange=False`` takes the two-rename swap (a filesystem without
+    ``RENAME_EXCHANGE``)."""
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    env.pop(staging.KILL_AT, None)
+    if kill:
+        env[staging.KILL_AT] = kill
+    code = ("import sys; from maniskill_dualher import staging; staging.EXCHANGE = %r\n"
+            "from maniskill_dualher.analysis.report import main; sys.exit(main(sys.argv[1:]))" % exchange)
+    return subprocess.run([sys.executable, "-c", code, *map(str, args)], cwd=REPO, env=env, capture_output=True,
+                          text=True, timeout=300)
+
+
+def _tree(root: Path) -> dict:
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+def _leftovers(parent: Path) -> list:
+    return sorted(p.name for p in parent.rglob(".*report-*"))
+
+
+# (kill point, exchange): before the swap (scores merged, tables written, all staged) and after it; the
+# two-rename path between its renames leaves the folder missing for a moment, finished by the next report
+MERGE_KILLS = [("merged-scores", True), ("tables", True), ("staged", True), ("exchanged", True),
+               ("staged", False), ("renamed-old", False)]
+
+
+def test_a_merge_killed_at_any_point_leaves_the_folder_as_before_or_merged(folder, tmp_path, capsys):
+    """SIGKILL at each point of a merge and its report: the folder is byte-identical to before or to an
+    uninterrupted merge, and the same command again ends byte-identical to the uninterrupted merge, no
+    staging folder left."""
+    ref, other = _merge_pair(folder, tmp_path)
+    before = _tree(ref)
+    args = ["--merge", other, "--resamples", "200"]
+    done = tmp_path / "done" / "reference"        # summary.md names its folder: same name everywhere
+    shutil.copytree(ref, done)
+    assert report.main([str(done), *map(str, args)]) == 0
+    merged = _tree(done)
+    assert merged != before and merged["scores.csv"] != before["scores.csv"]
+    seen = set()
+    for point, exchange in MERGE_KILLS:
+        copy = tmp_path / f"{point}-{exchange}" / "reference"
+        shutil.copytree(ref, copy)
+        r = _report_cli([copy, *args], kill=point, exchange=exchange)
+        assert r.returncode == -signal.SIGKILL, (point, r.returncode, r.stderr[-2000:])
+        if point == "renamed-old":   # between the renames: the old folder and the complete new one beside it
+            assert not copy.exists()
+            assert _tree(staging.beside(copy, "old")) == before and _tree(staging.beside(copy, "new")) == merged
+        else:
+            now = _tree(copy)
+            assert now in (before, merged), point
+            seen.add("before" if now == before else "merged")
+        capsys.readouterr()
+        assert report.main([str(copy), *map(str, args)]) == 0, (point, capsys.readouterr().err)
+        assert _tree(copy) == merged, point
+        assert _leftovers(copy.parent) == [], point
+    assert seen == {"before", "merged"}
+
+
+JOURNAL_KILLS = ["tables", "staged", "committed", "moved-one"]
+
+
+def test_a_report_of_a_sweep_folder_killed_at_any_point_is_finished_by_the_next(folder, tmp_path):
+    """A sweep folder (its run folders cannot move): the new files are staged inside it and moved in after
+    a commit point. Killed before it, the report's files are as before; after it, the next report finishes
+    the move first; either way the rerun ends byte-identical to an uninterrupted report."""
+    report.build_report(folder, resamples=200)
+    _write_run(folder / "runs/single/CloseBox-v1-sac-s7", _cfg("CloseBox-v1", "sac", 7), [3, 4], [0.0, 9.0],
+               [_cell("single", "paper", "CloseBox-v1", "sac", 7, role="single", chain="", stage=0)])
+    outputs = lambda d: {k: v for k, v in _tree(d).items() if "/" not in k}   # noqa: E731
+    before = outputs(folder)
+    done = tmp_path / "done" / "sweep"
+    shutil.copytree(folder, done)
+    assert report.main([str(done), "--resamples", "200"]) == 0
+    new = outputs(done)
+    assert new["scores.csv"] != before["scores.csv"]
+    for point in JOURNAL_KILLS:
+        copy = tmp_path / point / "sweep"
+        shutil.copytree(folder, copy)
+        r = _report_cli([copy, "--resamples", "200"], kill=point)
+        assert r.returncode == -signal.SIGKILL, (point, r.returncode, r.stderr[-2000:])
+        if point in ("tables", "staged"):
+            assert outputs(copy) == before, point
+        r = _report_cli([copy, "--resamples", "200"])
+        assert r.returncode == 0, r.stderr
+        assert outputs(copy) == new, point
+        assert _leftovers(copy.parent) == [], point
+        assert point in ("tables", "staged") or r.stdout.startswith(f"note: finished the interrupted report of")
 
 
 def test_sides_are_paired_on_the_seeds_whose_two_sides_adapted_one_prior():

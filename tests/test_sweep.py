@@ -263,6 +263,124 @@ def test_sigkill_midway_then_resume_gives_identical_tables(smoke_local, tmp_path
     assert _tables_bytes(out) == _tables_bytes(ref)
 
 
+def _procs() -> dict:
+    """pid -> (ppid, process group) of every live process (/proc)."""
+    out = {}
+    for p in Path("/proc").iterdir():
+        if p.name.isdigit():
+            try:
+                f = (p / "stat").read_text().rsplit(")", 1)[1].split()
+                if f[0] != "Z":
+                    out[int(p.name)] = (int(f[1]), int(f[2]))
+            except (OSError, IndexError, ValueError):
+                pass
+    return out
+
+
+def _free_port() -> int:
+    import socket
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class _RayHead:
+    """A local Ray cluster made by ``ray start --head`` (2 CPUs, its own ports and temp folder); ``lose()``
+    SIGKILLs every process it started (GCS, raylet, agents, and the workers the raylet spawned, which sit in
+    process groups of their own), by pid: a head node lost, not a clean ``ray stop``."""
+
+    def __init__(self):
+        import tempfile
+        self.tmp = tempfile.mkdtemp(prefix="rh", dir="/tmp")  # short: Ray's socket paths have a length limit
+        self.port = _free_port()
+        self.ports = [str(_free_port()) for _ in range(4)]
+        self.group = None
+
+    @property
+    def address(self) -> str:
+        return f"127.0.0.1:{self.port}"
+
+    def start(self) -> None:
+        env = {k: v for k, v in _env().items() if k != "RAY_ADDRESS"}
+        p = subprocess.Popen([sys.executable, "-c", "import sys; from ray.scripts.scripts import main; sys.exit(main())",
+                              "start", "--head", "--num-cpus", "2", "--port", str(self.port), "--temp-dir", self.tmp,
+                              "--include-dashboard=false", "--disable-usage-stats", "--object-store-memory", "80000000",
+                              "--ray-client-server-port", self.ports[0], "--dashboard-port", self.ports[1],
+                              "--dashboard-agent-listen-port", self.ports[2], "--metrics-export-port", self.ports[3]],
+                             env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                             start_new_session=True)
+        self.group = p.pid
+        log = p.communicate(timeout=180)[0]
+        assert p.returncode == 0, log[-3000:]
+
+    def lose(self) -> None:
+        procs = _procs()
+        mine = {pid for pid, (_, group) in procs.items() if group == self.group}
+        while True:
+            more = {pid for pid, (ppid, _) in procs.items() if ppid in mine} - mine
+            if not more:
+                break
+            mine |= more
+        for pid in mine:
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+        t_end = time.time() + 15
+        while time.time() < t_end and set(_procs()) & mine:
+            time.sleep(0.1)
+
+
+# four single-task runs (two tasks, two methods), one at a time per Ray CPU
+RAY_GRID = ["--preset", "smoke", "--experiments", "single", "--tasks", "ReachTarget-v1,CloseBox-v1",
+            "--methods", "sac,dual_buffer", "--seeds", "1", "--pack", "1"]
+
+
+@pytest.mark.skipif(not Path("/proc").is_dir(), reason="needs /proc to find the cluster's processes")
+def test_a_sweep_whose_ray_head_is_lost_resumes_to_the_same_tables(tmp_path):
+    """`--backend ray --ray-address` on a `ray start` cluster: once a run has finished (and before all), the
+    driver and every process of the head are SIGKILLed; a new head on the same address and the same command
+    finish the sweep with tables byte-identical to an uninterrupted inline sweep of the same definition."""
+    pytest.importorskip("ray")
+    ref = tmp_path / "inline"
+    assert run_sweep([*RAY_GRID, "--backend", "inline", "--out", str(ref)]) == 0
+    runs = json.loads((ref / "sweep.json").read_text())["runs"]
+    assert len(runs) == 4
+    head = _RayHead()
+    out = tmp_path / "ray"
+    args = [*RAY_GRID, "--backend", "ray", "--ray-address", head.address, "--out", str(out)]
+    log = open(tmp_path / "first.log", "w")
+    driver = None
+    try:
+        head.start()
+        driver = subprocess.Popen([sys.executable, "-m", "maniskill_dualher.sweep", *args], cwd=REPO, env=_env(),
+                                  stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+        deadline = time.time() + 400
+        while time.time() < deadline and driver.poll() is None:
+            if any(rundir.is_done(out / r) for r in runs):
+                break
+            time.sleep(0.05)
+        assert driver.poll() is None, (tmp_path / "first.log").read_text()[-3000:]
+        os.killpg(driver.pid, signal.SIGKILL)
+        driver.wait()
+        head.lose()
+        finished = [r for r in runs if rundir.is_done(out / r)]
+        assert 1 <= len(finished) < len(runs), finished
+        assert not (out / "summary.md").exists()
+        head.start()                      # a new head at the same address
+        r = _cli(*args)
+        assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-3000:]
+        assert f"{len(finished)} of {len(runs)} runs already finished: skipped" in r.stdout
+    finally:
+        if driver is not None and driver.poll() is None:
+            os.killpg(driver.pid, signal.SIGKILL)
+        head.lose()
+        log.close()
+        shutil.rmtree(head.tmp, ignore_errors=True)
+    assert all(rundir.is_done(out / r) for r in runs)
+    assert _tables_bytes(out) == _tables_bytes(ref)
+
+
 # ----------------------------------------------------------------------------- transfer protocol
 def _tiny(env_id, method="dual_buffer", steps=150, seed=0):
     return RunConfig(env_id=env_id, method=method, seed=seed, total_steps=steps, max_episode_steps=50,
@@ -501,6 +619,36 @@ def test_run_grid_parents_first_failures_block_descendants(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "FAILED" in out and "last line of the error" in out and "2 runs not started" in out
     assert "final eval success 0.50, successful training episodes 3" in out
+
+
+def test_a_sweep_in_which_no_run_finishes_ends_with_one_line_exit_1(tmp_path):
+    """Every run fails, for a real cause (each run folder's provenance.json is a folder, so no run can record
+    its start): the sweep ends with one line on stderr saying how many runs did not finish and the command
+    that retries them, exit 1, no traceback, no report. That command, once the cause is gone, finishes them."""
+    import shlex
+    out = tmp_path / "none"
+    args = ["--preset", "smoke", "--experiments", "single", "--tasks", "ReachTarget-v1", "--methods", "sac",
+            "--seeds", "2", "--out", str(out)]
+    rels = [ln.split()[1] for ln in _cli(*args, "--dry-run").stdout.splitlines() if ln.startswith("todo ")]
+    assert len(rels) == 2
+    for rel in rels:
+        (out / rel / rundir.PROVENANCE).mkdir(parents=True)
+    r = _cli(*args)
+    assert r.returncode == 1, r.stderr[-3000:]
+    assert "Traceback" not in r.stderr + r.stdout
+    err = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert [ln for ln in err if ln.startswith("error:")] == err[-1:], err[-5:]
+    again = "python -m maniskill_dualher.sweep " + shlex.join(args)
+    assert err[-1].startswith("error: 2 of 2 runs did not finish (first: runs/single/") and "no run finished" in err[-1]
+    assert err[-1].endswith(f"rerun the same command to retry them: {again}"), err[-1]
+    assert r.stdout.count("FAILED") == 2 and all((out / rel / rundir.ERROR).is_file() for rel in rels)
+    assert not (out / "summary.md").exists() and not (out / "scores.csv").exists()
+    for rel in rels:
+        (out / rel / rundir.PROVENANCE).rmdir()
+    r = subprocess.run([sys.executable, *shlex.split(again)[1:]], cwd=REPO, env=_env(), capture_output=True,
+                       text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert all(rundir.is_done(out / rel) for rel in rels) and (out / "summary.md").is_file()
 
 
 def _fresh_copy(dst: Path) -> Path:

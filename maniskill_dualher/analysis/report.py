@@ -14,10 +14,17 @@ where there is nothing to build from, it refuses with one line and exit code 2, 
 ``--merge OTHER`` adds another sweep's scores and curves to a results folder (one without run folders): only
 cells (experiment, arm, method, task, seed, stage, role) the folder does not have yet, only from a sweep with
 the same budgets and settings, each row keeping the machine it ran on; ``sweep.json`` lists what was merged.
+The same ``--merge`` again says in one line that the folder holds those runs and is complete, and writes nothing.
+
+A report (a merge included) is written as one (``staging.py``): built in full in a staging folder, then
+swapped in, so killed at any moment the folder holds its old files or the new ones, and the next report on
+it (the same command again, or any) first finishes or undoes what was cut.
 """
 from __future__ import annotations
 
+import os
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Dict, List, Optional, Sequence
 
@@ -26,6 +33,7 @@ from ..cmdline import OneLineParser
 from ..config import ConfigError
 from ..experiment.registry import default_experiments  # plain data: no torch, no simulator
 from ..fileio import atomic_write_text, csv_text, fmt
+from ..staging import Staged, kill_point
 from . import budget as budget_mod
 from . import diagnostics as diagnostics_mod
 from . import claims as claims_mod
@@ -73,11 +81,11 @@ def md_table(rows: List[dict], columns: List[str]) -> str:
 FAMILY_TITLES = [f"{t} (`{g}`)" for g, t in claims_mod.FAMILIES.items()]
 
 
-def summary_md(folder: Path, scores, tables, claims, figures: List[str], unfinished: List[str],
+def summary_md(name: str, sweep: Optional[dict], scores, tables, claims, figures: List[str], unfinished: List[str],
                budget_rows: Sequence[dict] = ()) -> str:
-    sweep = rundir.read_sweep(folder) or {}
+    sweep = sweep or {}
     runs = sorted({r["run"] for r in scores})
-    s = [f"# Results: {folder.name}" + (f" (preset {sweep['preset']})" if sweep.get("preset") else ""), ""]
+    s = [f"# Results: {name}" + (f" (preset {sweep['preset']})" if sweep.get("preset") else ""), ""]
     s.append(f"{len(runs)} finished runs in `{SCORES}`"
              + (f"; {len(unfinished)} runs unfinished (not counted)" if unfinished else "") + ".")
     if sweep.get("budgets"):
@@ -175,117 +183,177 @@ MERGE_SAME = ("preset", "budgets", "preset_settings", "settings", "task_order", 
 CELL_ID = ("experiment", "arm", "method", "task", "seed", "stage", "role")
 
 
-def merge_into(folder: Path, other: Path) -> None:
-    """Add ``other``'s scores and curves (cells ``folder`` lacks) to ``folder``; refuse anything ambiguous."""
+def merge_into(folder: Path, other: Path, into: Optional[Path] = None) -> Optional[int]:
+    """Add ``other``'s scores and curves (cells ``folder`` lacks) to ``folder`` (read from and written to
+    ``into``, its staged copy, where given); refuse anything ambiguous. Returns None, or the number of
+    ``other``'s runs when ``folder`` holds every one of its rows already (merged before): then writes nothing."""
     folder, other = Path(folder), Path(other)
-    for f in (folder, other):
-        if not ((f / SCORES).is_file() and (f / CURVES).is_file()):
+    into = Path(into) if into is not None else folder
+    for f, at in ((folder, into), (other, other)):
+        if not ((at / SCORES).is_file() and (at / CURVES).is_file()):
             raise ConfigError(f"--merge needs {SCORES} and {CURVES} in {f} (run the report on it first)")
-    if (folder / rundir.RUNS_DIR).is_dir():
+    if (into / rundir.RUNS_DIR).is_dir():
         raise ConfigError(f"{folder} holds run folders: merge into a results folder built from scores alone")
-    mine, theirs = rundir.read_sweep(folder) or {}, rundir.read_sweep(other) or {}
+    mine, theirs = rundir.read_sweep(into) or {}, rundir.read_sweep(other) or {}
     differ = [k for k in MERGE_SAME if mine.get(k) != theirs.get(k)]
     if differ:
         raise ConfigError(f"{other} is a sweep with other {differ[0]} than {folder}: its cells would not compare")
-    scores, new = read_rows(folder / SCORES), read_rows(other / SCORES)
+    scores, new = read_rows(into / SCORES), read_rows(other / SCORES)
+    if not new:
+        raise ConfigError(f"{other / SCORES} holds no scores")
+    name = other.name or Path(os.path.realpath(other)).name
+    prefix = name + "/"
+    new = [{**r, "run": prefix + r["run"]} for r in new]
+    theirs_curves = [{**r, "run": prefix + r["run"]} for r in read_rows(other / CURVES)]
     have = {tuple(r[k] for k in CELL_ID) for r in scores}
     clash = sorted({tuple(r[k] for k in CELL_ID) for r in new} & have)
     if clash:
+        if any(m.get("folder") == name for m in mine.get("merged", [])) \
+                and _rows_in(new, scores, SCORE_COLUMNS) and _rows_in(theirs_curves, read_rows(into / CURVES),
+                                                                      CURVE_COLUMNS):
+            return len({r["run"] for r in new})
         raise ConfigError(f"{folder} already has cell {'/'.join(clash[0])} that {other} also has; "
                           f"merge only new cells (e.g. run the sweep with other --experiments)")
-    if not new:
-        raise ConfigError(f"{other / SCORES} holds no scores")
-    prefix = other.name + "/"
-    curves = read_rows(folder / CURVES) + [{**r, "run": prefix + r["run"]} for r in read_rows(other / CURVES)]
-    scores += [{**r, "run": prefix + r["run"]} for r in new]
+    curves = read_rows(into / CURVES) + theirs_curves
+    scores += new
     merged = list(mine.get("merged", [])) + [{
-        "folder": other.name, "experiments": theirs.get("experiments", []),
+        "folder": name, "experiments": theirs.get("experiments", []),
         "runs": len({r["run"] for r in new}), "machines": sorted({r.get("machine", "") for r in new} - {""})}]
-    atomic_write_text(folder / SCORES, csv_text(scores, SCORE_COLUMNS))
-    atomic_write_text(folder / CURVES, csv_text(curves, CURVE_COLUMNS))
-    rundir.write_json(folder / rundir.SWEEP, {**mine, "merged": merged})
+    atomic_write_text(into / SCORES, csv_text(scores, SCORE_COLUMNS))
+    kill_point("merged-scores")
+    atomic_write_text(into / CURVES, csv_text(curves, CURVE_COLUMNS))
+    rundir.write_json(into / rundir.SWEEP, {**mine, "merged": merged})
+    return None
 
 
-def _read_unique(folder: Path, written: List[Path]):
+def _rows_in(rows: List[dict], table: List[dict], columns: Sequence[str]) -> bool:
+    """Every row of ``rows`` is a row of ``table`` (compared on ``columns``)."""
+    have = {tuple(r.get(c, "") for c in columns) for r in table}
+    return all(tuple(r.get(c, "") for c in columns) in have for r in rows)
+
+
+def _read_unique(src: Path, out: Path, written: List[str]):
     """scores.csv and curves.csv, each row once (``runs.unique_rows``); a file that held repeats (written
     before a run's cells were made unique) is rewritten without them, so the next rebuild reads it as is."""
     files = ((SCORES, score_key, SCORE_COLUMNS), (CURVES, curve_key, CURVE_COLUMNS))
-    read = [read_rows(folder / name) for name, _, _ in files]
+    read = [read_rows(out / name if (out / name).is_file() else src / name) for name, _, _ in files]
     try:  # both checked before either is rewritten
-        unique = [unique_rows(rows, key, str(folder / name)) for rows, (name, key, _) in zip(read, files)]
+        unique = [unique_rows(rows, key, str(src / name)) for rows, (name, key, _) in zip(read, files)]
     except ValueError as e:
         raise ConfigError(str(e)) from None
     for rows, kept, (name, _, columns) in zip(read, unique, files):
         if len(kept) < len(rows):
-            atomic_write_text(folder / name, csv_text(kept, columns))
-            if folder / name not in written:
-                written.append(folder / name)
+            atomic_write_text(out / name, csv_text(kept, columns))
+            if name not in written:
+                written.append(name)
     return unique
+
+
+@dataclass
+class Outcome:
+    """What a report did: ``written`` (the folder's report files, now current), ``changed`` (False: they
+    were current already and nothing was written), ``notes`` (what it finished or undid of an interrupted
+    report first), ``merged_before`` (``--merge``: the other sweep's runs were in the folder already)."""
+    written: List[Path]
+    changed: bool
+    notes: List[str]
+    merged_before: Optional[int] = None
 
 
 def build_report(folder, resamples: int = 10_000, reference: Optional[Path] = None) -> List[Path]:
     """Write scores/curves (from runs), then tables, claims, plots and summary.md; return the paths written."""
+    return report(folder, resamples, reference).written
+
+
+def report(folder, resamples: int = 10_000, reference: Optional[Path] = None,
+           merge: Optional[Path] = None) -> Outcome:
+    """The report of ``folder`` (after adding ``merge``'s cells), written as one (``staging.py``): built in
+    full in a staging folder, then swapped in; killed at any moment, the folder holds the old report or the
+    new one, and the next report on it finishes or undoes what was cut."""
     folder = Path(folder)
-    if not folder.is_dir():
-        raise ConfigError(f"no such folder: {folder}")
-    runs, unfinished = load_runs(folder)
-    unfinished = [u for u in unfinished if (folder / u).is_dir()]  # a folder shipped without its runs has none
-    written: List[Path] = []
-    old_scores = read_rows(folder / SCORES) if (folder / SCORES).is_file() else None
+    with Staged(folder) as st:
+        if not folder.is_dir():
+            raise ConfigError(f"no such folder: {folder}")
+        name = folder.name or st.folder.name
+        has_runs = (folder / rundir.RUNS_DIR).exists() or any(folder.rglob(rundir.CONFIG))
+        if not has_runs and not ((folder / SCORES).is_file() and (folder / CURVES).is_file()):
+            raise ConfigError(f"{folder} holds no finished runs and no {SCORES}/{CURVES}: nothing to report "
+                              f"(0 unfinished runs)")  # before a copy of a folder that is not a report's
+        if merge is not None and has_runs:
+            raise ConfigError(f"{folder} holds run folders: merge into a results folder built from scores alone")
+        out = st.begin(whole=not has_runs, read=(SCORES, CURVES))
+        src = out if st.whole else folder
+        merged_before = merge_into(folder, Path(merge), into=out) if merge is not None else None
+        names = _build(src, out, name, resamples, reference, merged=merge is not None and merged_before is None)
+        changed = st.commit(names)
+        return Outcome([folder / n for n in names], changed, st.notes, merged_before)
+
+
+def _build(src: Path, out: Path, name: str, resamples: int, reference: Optional[Path],
+           merged: bool = False) -> List[str]:
+    """The report's files, written into ``out``: run folders and the sweep's definition are read from
+    ``src``, scores.csv and curves.csv from ``out`` where written there (else ``src``). Returns their names."""
+    runs, unfinished = load_runs(src)
+    unfinished = [u for u in unfinished if (src / u).is_dir()]  # a folder shipped without its runs has none
+    written: List[str] = [SCORES, CURVES, rundir.SWEEP] if merged else []
+    have_scores = (out / SCORES).is_file() or (src / SCORES).is_file()
+    have_curves = (out / CURVES).is_file() or (src / CURVES).is_file()
+    old_scores = read_rows(out / SCORES if (out / SCORES).is_file() else src / SCORES) if have_scores else None
     if runs:
         new_scores = score_rows(runs)
         if old_scores is not None:
             missing = sorted(r for r in {r["run"] for r in old_scores} - {r["run"] for r in new_scores}
-                             if not (folder / r).is_dir())  # runs whose folders are gone (a shipped folder)
+                             if not (src / r).is_dir())  # runs whose folders are gone (a shipped folder)
             if missing:
-                raise ConfigError(f"{folder / SCORES} holds {len(missing)} runs this folder no longer has "
+                raise ConfigError(f"{src / SCORES} holds {len(missing)} runs this folder no longer has "
                                   f"(e.g. {missing[0]}); refusing to replace it with less")
-        atomic_write_text(folder / SCORES, csv_text(new_scores, SCORE_COLUMNS))
-        atomic_write_text(folder / CURVES, csv_text(curve_rows(runs), CURVE_COLUMNS))
-        written += [folder / SCORES, folder / CURVES]
-    elif old_scores is None or not (folder / CURVES).is_file():
-        raise ConfigError(f"{folder} holds no finished runs and no {SCORES}/{CURVES}: nothing to report "
+        atomic_write_text(out / SCORES, csv_text(new_scores, SCORE_COLUMNS))
+        atomic_write_text(out / CURVES, csv_text(curve_rows(runs), CURVE_COLUMNS))
+        written += [n for n in (SCORES, CURVES) if n not in written]
+    elif old_scores is None or not have_curves:
+        raise ConfigError(f"{src} holds no finished runs and no {SCORES}/{CURVES}: nothing to report "
                           f"({len(unfinished)} unfinished runs)")
     # everything below reads the two files back, so a rebuild without run folders is byte-identical
-    scores, curves = _read_unique(folder, written)
-    sweep = rundir.read_sweep(folder)
+    scores, curves = _read_unique(src, out, written)
+    sweep = rundir.read_sweep(src)
     if sweep:  # from the definition and the registry, so a folder without run folders gets it too
         hp = hyperparameters.hyperparameter_rows(hyperparameters.cell_configs(sweep, scores))
-        atomic_write_text(folder / "hyperparameters.csv", csv_text(hp, hyperparameters.COLUMNS))
-        written.append(folder / "hyperparameters.csv")
+        atomic_write_text(out / "hyperparameters.csv", csv_text(hp, hyperparameters.COLUMNS))
+        written.append("hyperparameters.csv")
     ref_curves = None
     if reference is not None:
         if not (Path(reference) / CURVES).is_file():
             raise ConfigError(f"--reference {reference} holds no {CURVES}")
         ref_curves = read_rows(Path(reference) / CURVES)
     tables = build_tables(scores, default_experiments())
-    for name, rows in tables.items():
-        atomic_write_text(folder / name, csv_text(rows, TABLE_COLUMNS))
-        written.append(folder / name)
+    for table, rows in tables.items():
+        atomic_write_text(out / table, csv_text(rows, TABLE_COLUMNS))
+        written.append(table)
+    kill_point("tables")
     claims = claims_mod.claim_rows(scores, resamples)
-    atomic_write_text(folder / "claims.csv", csv_text(claims, claims_mod.CLAIM_COLUMNS))
-    written.append(folder / "claims.csv")
+    atomic_write_text(out / "claims.csv", csv_text(claims, claims_mod.CLAIM_COLUMNS))
+    written.append("claims.csv")
     budget_rows = budget_mod.budget_rows(scores, resamples)
     if budget_rows:
-        atomic_write_text(folder / "budget.csv", csv_text(budget_rows, budget_mod.BUDGET_COLUMNS))
-        written.append(folder / "budget.csv")
+        atomic_write_text(out / "budget.csv", csv_text(budget_rows, budget_mod.BUDGET_COLUMNS))
+        written.append("budget.csv")
     diag_rows = diagnostics_mod.diagnostic_rows(scores)
     if diag_rows:
-        atomic_write_text(folder / "diagnostics.csv", csv_text(diag_rows, diagnostics_mod.COLUMNS))
-        written.append(folder / "diagnostics.csv")
+        atomic_write_text(out / "diagnostics.csv", csv_text(diag_rows, diagnostics_mod.COLUMNS))
+        written.append("diagnostics.csv")
     figures = []
     ablations = [e for e in dict.fromkeys(r["experiment"] for r in scores) if e not in default_experiments()]
-    for name, fn in (("fig4_single_task.png", lambda p: plots.plot_fig4(curves, p, ref_curves)),
-                     ("fig5_multitask.png", lambda p: plots.plot_fig5(curves, p, ref_curves)),
-                     ("fig6_ablations.png", lambda p: plots.plot_ablations(curves, p, ablations)),
-                     ("fig7_aggregate.png", lambda p: plots.plot_aggregate(scores, p)),
-                     ("fig8_budget.png", lambda p: plots_budget.plot_budget(budget_rows, p))):
-        if fn(folder / name):
-            figures.append(name)
-            written.append(folder / name)
-    atomic_write_text(folder / "summary.md", summary_md(folder, scores, tables, claims, figures, unfinished,
-                                                               budget_rows))
-    written.append(folder / "summary.md")
+    for fig, fn in (("fig4_single_task.png", lambda p: plots.plot_fig4(curves, p, ref_curves)),
+                    ("fig5_multitask.png", lambda p: plots.plot_fig5(curves, p, ref_curves)),
+                    ("fig6_ablations.png", lambda p: plots.plot_ablations(curves, p, ablations)),
+                    ("fig7_aggregate.png", lambda p: plots.plot_aggregate(scores, p)),
+                    ("fig8_budget.png", lambda p: plots_budget.plot_budget(budget_rows, p))):
+        if fn(out / fig):
+            figures.append(fig)
+            written.append(fig)
+    atomic_write_text(out / "summary.md", summary_md(name, sweep, scores, tables, claims, figures, unfinished,
+                                                     budget_rows))
+    written.append("summary.md")
     return written
 
 
@@ -302,13 +370,19 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     try:
         if a.resamples < 100:
             raise ConfigError(f"--resamples must be >= 100, got {a.resamples}")
-        if a.merge:
-            merge_into(Path(a.folder), Path(a.merge))
-        written = build_report(Path(a.folder), a.resamples, Path(a.reference) if a.reference else None)
+        done = report(Path(a.folder), a.resamples, Path(a.reference) if a.reference else None,
+                      Path(a.merge) if a.merge else None)
     except ConfigError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    for w in written:
+    for n in done.notes:
+        print(f"note: {n}")
+    if done.merged_before is not None:
+        print(f"{a.folder} already holds the {done.merged_before} runs of {a.merge} (merged before) "
+              + ("and its report is complete: nothing written" if not done.changed else
+                 "but its report was not up to date: rebuilt (" + ", ".join(w.name for w in done.written) + ")"))
+        return 0
+    for w in done.written:
         print(w)
     return 0
 

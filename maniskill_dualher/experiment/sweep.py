@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shlex
 import sys
 from pathlib import Path
 from typing import Callable, List, Optional, Sequence, Tuple
@@ -401,11 +402,24 @@ def _main(argv: Optional[Sequence[str]], held, train: Optional[Callable], report
         return 130
     finally:
         backend.close(cancel=cancel)
+    finished = sum(rundir.is_done(out / n.rel) for n in nodes)
+    no_report = ""
     if not a.no_report and report is not None:
-        written = report(out)
-        print(f"report: {len(written)} files in {out} (summary: {out / 'summary.md'})")
+        if finished:
+            try:
+                written = report(out)
+                print(f"report: {len(written)} files in {out} (summary: {out / 'summary.md'})")
+            except ConfigError as e:
+                if not failed:
+                    print(f"error: report: {e}", file=sys.stderr)
+                    return 2
+                no_report = f"; no report ({e})"
+        else:
+            no_report = "; no report: no run finished"
     if failed:
-        print(f"error: {len(failed)} runs did not finish (first: {failed[0]}); rerun to retry", file=sys.stderr)
+        again = "python -m maniskill_dualher.sweep " + shlex.join(sys.argv[1:] if argv is None else list(argv))
+        print(f"error: {len(failed)} of {len(nodes)} runs did not finish (first: {failed[0]}){no_report}; "
+              f"rerun the same command to retry them: {again}", file=sys.stderr)
         return 1
     return 0
 
