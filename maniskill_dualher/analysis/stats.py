@@ -86,24 +86,27 @@ a normal approximation, so at small n it is optimistic; it is advice, never a ve
 
 Paired sides
 ------------
-When both sides adapt the very same prior for each seed (the same source-stage run folders: e.g. the ratio
-arms, or an ablation arm beside the paper's arm in one sweep), the prior's seed-to-seed spread is common to
-both and cancels in the per-seed differences x_s = A_s - B_s. ``compare(..., paired=True)`` then gives the
-same symmetric bootstrap-t on the one sample x (resampling seeds, studentized by sd(x*)/sqrt(n)), floored
-at the paired t interval (reported as the Welch columns), and seeds_to_decide uses var(x) in place of
-s_A^2 + s_B^2. It is the same code path as the two-sample interval with B = 0 (one stratum, df = n - 1).
+Two kinds of claims are paired by seed (``claims.paired_seeds`` decides which seeds, from the definition and
+the source stages, never from the outcome). (1) Both sides adapt one prior for each seed: the same
+source-stage runs (run identity and every recorded source-stage score equal: one shared folder, or the same
+config and seed trained again on one kind of CPU), e.g. the ratio arms, or an ablation arm beside the paper's
+arm. The prior's seed-to-seed spread is common to both and cancels in the per-seed differences. (2) Both sides
+start from nothing (a ``scratch`` experiment, or single-task runs) and ran on the same kind of CPU: a seed fixes
+a run's initial networks, its random streams and every episode's reset seed, so the same seed starts both sides
+from the same point (issue 39; their outcomes correlate, ``pair_corr`` in ``claims.csv``). A seed pairs only when
+both sides have it; when the seeds that pair are at least half of the smaller side's (and at least
+``MIN_SEEDS``), the claim is decided on them alone, paired, and the other seeds are left out; otherwise it is
+decided on every seed, unpaired. For the per-seed differences x_s = A_s - B_s, ``compare(..., paired=True)``
+gives the same symmetric bootstrap-t on the one sample x (resampling seeds, studentized by sd(x*)/sqrt(n)),
+floored at the paired t interval (reported as the Welch columns), and seeds_to_decide uses var(x) in place of
+s_A^2 + s_B^2. It is the same code path as the two-sample interval with B = 0 (one stratum, df = n - 1); when
+every difference is 0 (the negative control ``scratch_e_off``) the interval is [0, 0].
 Pairing is decided from the data (``claims.paired``), never by the outcome. Coverage, measured as above with
 a shared prior term per seed (``python bench/ci_coverage.py --paired --reps 1000 --resamples
 1000 --n 6 16 32 --methods percentile welch-t "symmetric bootstrap-t"``, CPU B): the chosen interval covers
 0.959-0.989 at n = 6, 0.936-0.980 at n = 16 and 0.936-0.976 at n = 32 over the same 8 cases (paired t:
 0.929-0.971; percentile 0.839-0.942); the lowest, 0.936, is the exponential "diff" case, where the
 unpaired interval also sits at 0.944. Median width 1.01-1.15x the paired t interval's at n >= 16.
-
-Partly shared priors are not paired: ``claims.paired_seeds`` pairs a claim on the seeds of its smaller side
-only when every one of them adapted the same source-stage runs on the other side (e.g. ``split``'s 8 seeds
-beside the paper arm's 32, or ``shared_a``, where both methods adapt SAC+HER+PER's prior); the other side's
-remaining seeds are then left out. A claim whose priors are shared for some seeds only (``r_matched``: 8 of
-32) stays unpaired on all its seeds.
 
 p-values, and the correction for many claims
 --------------------------------------------
