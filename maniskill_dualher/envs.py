@@ -17,7 +17,7 @@ from typing import Optional, Tuple
 import gymnasium as gym
 import numpy as np
 
-from .config import ConfigError, RunConfig
+from .config import TASKS, ConfigError, RunConfig
 from .replay.base import RewardFn
 
 EVAL_SEED_BASE = 1_000_000_000  # evaluation episodes use seeds EVAL_SEED_BASE + i in every run
@@ -267,7 +267,7 @@ def _known_task_ids():
         import maniskill_dualher.tasks  # noqa: F401
     except ImportError:
         pass
-    return sorted(k for k in gym.registry if k in ("ReachTarget-v1", "CloseBox-v1", "CloseMicrowave-v1"))
+    return sorted(k for k in gym.registry if k in TASKS)
 
 
 def make_env(cfg: RunConfig) -> BatchEnv:
