@@ -137,6 +137,35 @@ def _imports(path: Path, package: str):
     return {m for m in out if m.split(".")[0] == package}
 
 
+def test_no_import_circles_among_the_tasks():
+    """tasks/ (maniskill_dualher.tasks): no cycle, deferred imports included; the lean step builds on the task
+    base (tasks/lean.py imports tasks/common.py, never the other way)."""
+    files = {".".join(p.relative_to(REPO).with_suffix("").parts): p
+             for p in (REPO / "tasks").glob("*.py") if p.name != "__init__.py"}
+    imports = lambda p: _imports(p, "tasks") | _imports(p, "maniskill_dualher")  # noqa: E731
+    graph = {m: {i.replace("maniskill_dualher.tasks.", "tasks.") for i in imports(p)} & set(files) - {m}
+             for m, p in files.items()}
+    _no_cycle(graph)
+    assert "tasks.common" in graph["tasks.lean"] and "tasks.lean" not in graph["tasks.common"]
+
+
+def _no_cycle(graph) -> None:
+    state = {}
+
+    def visit(m, path):
+        if state.get(m) == 1:
+            raise AssertionError("import circle: " + " -> ".join(path + [m]))
+        if state.get(m) == 2:
+            return
+        state[m] = 1
+        for n in graph[m]:
+            visit(n, path + [m])
+        state[m] = 2
+
+    for m in graph:
+        visit(m, [])
+
+
 def test_no_import_circles_among_core_modules():
     """Module-level import graph of maniskill_dualher/*.py (including deferred imports) has no cycle."""
     files = {".".join(p.relative_to(REPO).with_suffix("").parts): p

@@ -306,20 +306,8 @@ def _side_rows(scores: Sequence[Dict[str, str]], side: Side, metric: str) -> Dic
     return by_seed
 
 
-def side_values(scores: Sequence[Dict[str, str]], side: Side, metric: str) -> List[float]:
-    """One value per seed (ascending seed) of a side's cell and metric."""
-    by_seed = _side_rows(scores, side, metric)
-    return [float(by_seed[s]["value"]) for s in sorted(by_seed)]
-
-
 def _machines(rows: Sequence[Dict[str, str]]) -> Counter:
     return Counter(r.get("machine") or "unknown" for r in rows)
-
-
-def side_machines(scores: Sequence[Dict[str, str]], c: Claim) -> str:
-    """The CPUs both sides' runs ran on ("; "-joined, sorted)."""
-    rows = list(_side_rows(scores, c.a, c.metric).values()) + list(_side_rows(scores, c.b, c.metric).values())
-    return "; ".join(sorted(_machines(rows))) if rows else ""
 
 
 def machine_balance(rows_a: Sequence[Dict[str, str]], rows_b: Sequence[Dict[str, str]]) -> Tuple[str, str]:
