@@ -54,6 +54,7 @@ FEEDS = {
     FIG7: "rliable-style aggregates of single-task runs",
 }
 ABLATION_FEEDS = (ABLATIONS_CSV, FIG6)
+SINGLE_FEEDS = (SINGLE_TASK_CSV, FIG4, FIG7)   # these hold single-task rows; every other feed adaptation rows
 
 
 def _check_feeds(what: str, feeds: Tuple[str, ...]) -> None:
@@ -89,7 +90,8 @@ class Experiment:
     max_seeds: Optional[int] = None            # use only the first n of the preset's seeds (costly arms)
     paper: str = ""                            # the paper's figure/table it reproduces, if any
     # the tables and figures its rows feed (FEEDS: file names, "fig5_multitask.png:ratio" a panel); the
-    # analysis selects on these, and on nothing else about the experiment
+    # analysis selects on these, and on nothing else about the experiment. Default: an ablation's; a
+    # single-task experiment feeds only SINGLE_FEEDS, a chain or scratch one only the others (checked)
     feeds: Tuple[str, ...] = ABLATION_FEEDS
     doc: str = ""                              # the question it answers, beyond its title (docs/experiments.md)
 
@@ -97,6 +99,14 @@ class Experiment:
         if self.kind not in KINDS:
             raise ConfigError(f"experiment {self.name!r}: kind {self.kind!r} is not one of {', '.join(KINDS)}")
         _check_feeds(f"experiment {self.name!r}", self.feeds)
+        for what, feeds in ((f"experiment {self.name!r}", self.feeds),
+                            *((f"arm {self.name}:{a.name}", a.feeds) for a in self.arms)):
+            fits = [f for f in FEEDS if (f in SINGLE_FEEDS) == (self.kind == "single")]
+            wrong = [f for f in feeds if f not in fits]
+            if wrong:
+                rows = "adaptation" if self.kind == "single" else "single-task"
+                raise ConfigError(f"{what} ({self.kind}) feeds {wrong[0]}, which holds {rows} rows: give its "
+                                  f"feeds=(...) from {', '.join(fits)}")
 
     def method_names(self) -> Tuple[str, ...]:
         if self.methods == "all":
