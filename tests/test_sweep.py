@@ -814,6 +814,21 @@ def test_the_reference_seeds_decide_by_default_and_explicit_seeds_drop_them(tmp_
     assert "seeds: her_episode/her_episode: 4 (4-7)" in capsys.readouterr().out.splitlines()
 
 
+def test_a_reference_sweep_folder_with_the_older_seed_table_is_the_same_sweep(tmp_path, capsys):
+    """A sweep.json whose arm_seeds are the older counts per arm (before the seeds were read from the reference)
+    holds the same sweep when its runs are the same: it resumes without --force; other runs are refused."""
+    out = tmp_path / "o"
+    d = _definition("--preset", "reference", "--experiments", "warm_start:warm_low_lr")
+    d["runs"] = sorted(n.rel for n in build_grid(d))
+    old = dict(d, arm_seeds={"warm_start:warm_low_lr": 16})
+    rundir.write_json(out / rundir.SWEEP, old)
+    args = ["--preset", "reference", "--experiments", "warm_start:warm_low_lr", "--out", str(out), "--dry-run"]
+    assert run_sweep(args) == 0
+    rundir.write_json(out / rundir.SWEEP, dict(old, runs=d["runs"][:-1]))
+    capsys.readouterr()
+    assert run_sweep(args) == 2 and "holds a different sweep" in capsys.readouterr().err
+
+
 def test_a_new_experiment_has_no_reference_seeds_and_its_dry_run_says_how_to_ask(tmp_path, monkeypatch, capsys):
     """One registry entry and nothing else: the reference preset plans it at no seeds (it is not in
     results/reference), says in one line how to ask for the preset's, and plans them when asked."""
