@@ -81,11 +81,9 @@ def measure_eval(task: str, members: int, evals: int) -> dict:
 
         def one_round():
             if side_by_side:
-                out = []
-                train.evaluate_runs(runs, lambda run, e: (_ for _ in ()).throw(e))
-                for r in runs:
-                    out.append(r.evaluated)
-                return out
+                got = train.evaluate_runs(runs, lambda run, e: (_ for _ in ()).throw(e))
+                # the metrics per run: returned (issue 40), or each run's ``evaluated`` (older trees)
+                return [got[r] if got is not None else r.evaluated for r in runs]
             return [r.evaluate() for r in runs]
 
         one_round()  # warm-up: imports, first allocations

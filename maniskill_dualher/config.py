@@ -28,9 +28,12 @@ DUAL_MODES = ("choose", "split")
 UPDATE_SCHEDULES = ("step", "episode")
 SUCCESS_BUFFER_MODES = ("transitions", "episodes")
 SIM_BACKENDS = ("physx_cpu", "physx_cuda")
-# The one task list: presets, the transfer chain, claims and tables read it (a new task is added here and in tasks/)
-TASKS = ("ReachTarget-v1", "CloseBox-v1", "CloseMicrowave-v1")
-OUR_TASKS = TASKS
+# The catalog of our tasks (a new task: its file in tasks/, its import in tasks/__init__.py, its id here). The
+# sweep's --tasks and budgets, the tables' and plots' task order read it; the paper's transfer chain is
+# experiment data (experiment/registry.py: PAPER_CHAIN), so a task added here joins no chain. A list: a task
+# registered at run time is appended (tests/test_registry.py).
+TASKS = ["ReachTarget-v1", "CloseBox-v1", "CloseMicrowave-v1"]
+OUR_TASKS = TASKS  # the name evaluate.py reads
 
 
 def check_device(device: str, what: Optional[str] = None) -> None:
@@ -252,7 +255,7 @@ class RunConfig:
                               f"{self.eval_every}, {self.eval_episodes}, {self.checkpoint_every}")
         if self.torch_threads < 1:
             raise ConfigError(f"torch_threads must be >= 1, got {self.torch_threads}")
-        if self.sim_backend == "physx_cpu" and self.num_envs != 1 and self.env_id in OUR_TASKS:
+        if self.sim_backend == "physx_cpu" and self.num_envs != 1 and self.env_id in TASKS:
             raise ConfigError(f"num_envs={self.num_envs} needs sim_backend='physx_cuda'; "
                               "ManiSkill's CPU simulation runs one env per process")
         check_device(self.device)

@@ -21,15 +21,22 @@ sampled; ``tests/test_e_mechanism.py``).
 """
 from __future__ import annotations
 
-from typing import Dict, Optional
+from typing import Dict, Optional, Set
 
 import numpy as np
 
 from .config import ConfigError
+from .methods import method_spec
 from .replay.base import Batch, Episode
 from .replay.buffer import Handle, to_batch
 from .replay.her import concat_rows, real_transitions, relabel
 from .replay.method import BufferMethod
+
+
+def adopted_classes(method: str) -> Set[str]:
+    """Class names of the methods whose prior ``method`` adopts (registry ``MethodSpec.adopts``): a method's
+    replay state names its class (``BufferMethod.state_dict``)."""
+    return {method_spec(m).target.rsplit(":", 1)[1] for m in method_spec(method).adopts}
 
 
 def _select(rows: Dict[str, np.ndarray], keep: np.ndarray) -> Dict[str, np.ndarray]:
@@ -81,10 +88,10 @@ class DualBufferReplay(BufferMethod):
             self.E.add(_select(real, ok))
 
     def load_transfer_state(self, state: dict) -> None:
-        """Adopt a prior's replay: the dual buffer's own, or SAC+HER+PER's single R (the shared-prior ablation:
-        R as it is, priorities included, and E started from R's real reward-1 rows, as Algorithm 1 would
-        have stored them)."""
-        if state.get("method") != "SACHerPerReplay":
+        """Adopt a prior's replay: the dual buffer's own, or that of a method its ``MethodSpec.adopts`` names
+        (SAC+HER+PER's single R, the shared-prior ablation: R as it is, priorities included, and E started from
+        R's real reward-1 rows, as Algorithm 1 would have stored them)."""
+        if state.get("method") not in adopted_classes(self.cfg.method):
             return self.load_state_dict(state)
         if self.rcfg.success_buffer == "episodes":
             raise ConfigError("success_buffer=episodes cannot be rebuilt from a SAC+HER+PER prior "

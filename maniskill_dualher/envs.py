@@ -17,7 +17,7 @@ from typing import Optional, Tuple
 import gymnasium as gym
 import numpy as np
 
-from .config import ConfigError, RunConfig
+from .config import TASKS, ConfigError, RunConfig
 from .replay.base import RewardFn
 
 EVAL_SEED_BASE = 1_000_000_000  # evaluation episodes use seeds EVAL_SEED_BASE + i in every run
@@ -128,10 +128,11 @@ class BatchEnv:
         self.lean_off_reason = "off" if not lean_step_wanted() else None
         if self.is_maniskill and self.lean_off_reason is None:
             from maniskill_dualher.tasks.common import episode_length
-            from maniskill_dualher.tasks.lean import unsupported_reason
+            from maniskill_dualher.tasks.lean import lean_step, unsupported_reason
             self.lean_off_reason = unsupported_reason(self.unwrapped)
             if self.lean_off_reason is None:
                 self.lean = self.unwrapped
+                self._lean_step = lean_step
                 self._time_limit = episode_length(self.env)  # ManiSkill's TimeLimitWrapper's, which lean skips
 
     # ------------------------------------------------------------------ making
@@ -213,7 +214,7 @@ class BatchEnv:
         """action in [-1, 1]^A -> (obs, reward, terminated, truncated, success or None), all numpy (N, ...)."""
         a = self.low + (np.clip(action, -1.0, 1.0) + 1.0) * 0.5 * (self.high - self.low)
         if self.lean is not None:
-            obs, rew, term, elapsed = self.lean.lean_step(np.asarray(a, dtype=np.float32))
+            obs, rew, term, elapsed = self._lean_step(self.lean, np.asarray(a, dtype=np.float32))
             trunc = np.array([self._time_limit is not None and elapsed >= self._time_limit])
             return obs, rew, term, trunc, term.copy()
         if self.is_maniskill:
@@ -267,7 +268,7 @@ def _known_task_ids():
         import maniskill_dualher.tasks  # noqa: F401
     except ImportError:
         pass
-    return sorted(k for k in gym.registry if k in ("ReachTarget-v1", "CloseBox-v1", "CloseMicrowave-v1"))
+    return sorted(k for k in gym.registry if k in TASKS)
 
 
 def make_env(cfg: RunConfig) -> BatchEnv:

@@ -359,9 +359,6 @@ class SAC(nn.Module):
     _n_updates = 0
 
     # ------------------------------------------------------------- checkpoint
-    def networks_state(self) -> dict:
-        return {k: v for k, v in self.state_dict().items()}
-
     def full_state(self) -> dict:
         return {"networks": self.state_dict(), "optimizer": self.optimizer.state_dict(), "n_updates": self._n_updates}
 

@@ -5,8 +5,10 @@
 ``train_runs`` reads top to bottom as the whole loop: every run acts, steps and stores one env step; the
 updates that are due are made (batched across runs with equal networks and settings, ``pack.Updater``: that
 is the only thing packing changes, besides runs evaluating at the same step side by side); every run
-evaluates, checkpoints, pauses or finishes between episodes. A run (``Trainer``) is plain state with ``step()``,
-``sample()``/``learn()`` around its update and ``between_episodes()``/``evaluation()``/``after_step()``; it owns its env, replay, optimizer, counters, folder and its ``torch.Generator``, so its
+evaluates, checkpoints, pauses or finishes between episodes. A run (``Trainer``) is plain state with ``step()``
+(-> its updates due), ``sample()``/``learn()`` around its update and ``between_episodes()`` (-> a ``Between``, what
+is due) / ``evaluation()`` / ``after_step(between)``; it owns its env, replay, optimizer, counters, folder and its
+``torch.Generator``, so its
 metrics and weights do not depend on which runs share its process (``tests/test_pack.py``).
 
 A run folder is the unit of truth: ``config.json``, ``metrics.csv`` (one row per evaluation),
@@ -30,7 +32,7 @@ import math
 import sys
 import time
 from pathlib import Path
-from typing import Callable, Generator, List, Optional, Sequence
+from typing import Callable, Dict, Generator, List, Optional, Sequence
 
 import numpy as np
 import torch
@@ -107,6 +109,17 @@ class Job:
     keep_replay: bool = False
 
 
+@dataclasses.dataclass
+class Between:
+    """What is due between episodes: ``Trainer.between_episodes`` hands it to the loop, which makes the evaluation
+    (side by side with other runs', ``evaluate_runs``) into ``evaluated``, and back to ``Trainer.after_step``."""
+    finished: bool                     # the budget is spent
+    stopping: bool                     # paused at the loop's stop_at
+    checkpoint: bool                   # a checkpoint is due
+    evaluate: bool                     # an evaluation is due
+    evaluated: Optional[dict] = None   # its metrics (None: after_step evaluates itself)
+
+
 # --------------------------------------------------------------------------- the loop
 def drive(runs: Sequence["Trainer"], stop_at: Optional[int] = None, close_finished: bool = True) -> List[dict]:
     """The training loop, for any number of runs side by side (a run alone is a pack of one). -> per run
@@ -120,33 +133,37 @@ def drive(runs: Sequence["Trainer"], stop_at: Optional[int] = None, close_finish
         _guard(run, results, live, run.start)              # logs, demonstrations, the step-0 evaluation
         _settle(run, results, live, close_finished)
     updater = Updater()
+    fail = lambda run, e: _fail(run, e, results, live)  # noqa: E731
     while live:
-        for run in list(live):                                                 # act, step, store
-            _guard(run, results, live, run.step)
-        for j in range(max((run.due for run in live), default=0)):             # update when due
-            updater.round([run for run in live if run.due > j], lambda run, e: _fail(run, e, results, live))
-        for run in list(live):                                                 # between episodes:
-            _guard(run, results, live, lambda: run.between_episodes(stop_at))  # what is due, episodes cut
-        evaluate_runs([run for run in live if run.eval_due],                   # evaluations, side by side
-                      lambda run, e: _fail(run, e, results, live))
+        # act, step, store: each run's updates due
+        due = {run: _guard(run, results, live, run.step) for run in list(live)}
+        for j in range(max((due[run] for run in live), default=0)):            # update when due
+            updater.round([run for run in live if due[run] > j], fail)
+        # between episodes: what is due (a Between, or None), episodes in flight cut
+        between = {run: _guard(run, results, live, lambda: run.between_episodes(stop_at)) for run in list(live)}
+        evaluating = [run for run in live if between[run] is not None and between[run].evaluate]
+        for run, metrics in evaluate_runs(evaluating, fail).items():           # evaluations, side by side
+            between[run].evaluated = metrics
         for run in list(live):                                                 # metrics, checkpoint, stop
-            _guard(run, results, live, run.after_step)
+            _guard(run, results, live, lambda: run.after_step(between[run]))
             _settle(run, results, live, close_finished)
     return results
 
 
-def evaluate_runs(runs: Sequence["Trainer"], fail: Callable[["Trainer", Exception], None]) -> None:
-    """The evaluations due now (``Trainer.eval_due``), each run's metrics into its ``evaluated``; ``fail(run, e)``
-    writes off a run whose evaluation raised. One run: ``Trainer.evaluate``. Several (a pack): their evaluation
+def evaluate_runs(runs: Sequence["Trainer"],
+                  fail: Callable[["Trainer", Exception], None]) -> Dict["Trainer", dict]:
+    """The evaluations of ``runs`` -> each run's metrics (a run whose evaluation raised is left out and handed to
+    ``fail(run, e)``). One run: ``Trainer.evaluate``. Several (a pack): their evaluation
     envs step side by side, one env step of every member in turn, each member acting with its own forward:
     the same env calls and actions as alone, so the same numbers. Not one batched forward across members:
     a stacked product is not bit-identical to the members' own on every machine (docs/speed.md)."""
+    out: Dict["Trainer", dict] = {}
     if len(runs) == 1:
         try:
-            runs[0].evaluated = runs[0].evaluate()
+            out[runs[0]] = runs[0].evaluate()
         except Exception as e:
             fail(runs[0], e)
-        return
+        return out
     steppers = []  # [run, its evaluation (generator), its forward, its policy input]
     for run in runs:
         try:
@@ -162,10 +179,11 @@ def evaluate_runs(runs: Sequence["Trainer"], fail: Callable[["Trainer", Exceptio
                 s[3] = gen.send(act(x))
                 going.append(s)
             except StopIteration as stop:
-                run.evaluated = stop.value
+                out[run] = stop.value
             except Exception as e:
                 fail(run, e)
         steppers = going
+    return out
 
 
 def _settle(run: "Trainer", results: List[Optional[dict]], live: List["Trainer"], close_finished: bool) -> None:
@@ -177,12 +195,13 @@ def _settle(run: "Trainer", results: List[Optional[dict]], live: List["Trainer"]
             run.close()
 
 
-def _guard(run: "Trainer", results: List[Optional[dict]], live: List["Trainer"], fn) -> None:
-    """fn(); an exception fails this run alone."""
+def _guard(run: "Trainer", results: List[Optional[dict]], live: List["Trainer"], fn):
+    """fn()'s value; an exception fails this run alone (None)."""
     try:
-        fn()
+        return fn()
     except Exception as e:
         _fail(run, e, results, live)
+        return None
 
 
 def _fail(run: "Trainer", e: Exception, results: List[Optional[dict]], live: List["Trainer"]) -> None:
@@ -284,10 +303,10 @@ def train_chain(stages: List[RunConfig], out_dir, carry_replay: bool = True,
 # --------------------------------------------------------------------------- one run
 class Trainer:
     """One run's state and its steps (``train_runs`` drives them): ``start``; per env step ``step`` (act, step,
-    store; sets ``due``), ``due`` times ``sample`` -> the update -> ``learn``, and between episodes
-    ``between_episodes`` (what is due; sets ``eval_due``), the evaluation (``evaluate``, or ``evaluation``
-    stepped beside other runs', ``evaluate_runs``) and ``after_step`` (metrics, checkpoint, pause or finish;
-    sets ``state`` and ``final_row``); ``close``."""
+    store; returns the updates due), that many times ``sample`` -> the update -> ``learn``, and between episodes
+    ``between_episodes`` (returns what is due, a ``Between``), the evaluation (``evaluate``, or ``evaluation``
+    stepped beside other runs', ``evaluate_runs``) and ``after_step(between)`` (metrics, checkpoint, pause or
+    finish; sets ``state`` and ``final_row``, the run's outcome); ``close``."""
 
     def __init__(self, cfg: RunConfig, out_dir, init_from=None, carry_replay: bool = False,
                  show_progress: bool = True, keep_replay: bool = False, progress: Optional[Progress] = None):
@@ -323,10 +342,6 @@ class Trainer:
         self.resumed = False
         self.k = 0                  # its index among the driver's jobs
         self.ended = np.zeros(self.spec.num_envs, dtype=bool)  # which envs' episodes ended this step
-        self.due = 0                # updates due this step
-        self.eval_due = False       # between episodes: an evaluation is due (drive makes it into ``evaluated``)
-        self.evaluated: Optional[dict] = None
-        self._between: Optional[tuple] = None  # (finished, stopping, checkpoint due) for after_step
         self.state = "running"      # then "paused" (at stop_at) or "finished"
         self.final_row: Optional[dict] = None
         self.tb = self.bar = None
@@ -410,8 +425,8 @@ class Trainer:
             self._close_logs()
             self.final_row, self.state = self.finish(), "finished"
 
-    def step(self) -> None:
-        """One step of every env: act, step, count, store the episodes that ended; how many updates are due."""
+    def step(self) -> int:
+        """One step of every env: act, step, count, store the episodes that ended -> how many updates are due."""
         eps = self.train_eps
         self._begin_episodes()
         action = self._explore(self.env.policy_input(eps.flat))
@@ -419,7 +434,7 @@ class Trainer:
         self._count_steps(eps.n_envs)
         for ep in eps.finished(self.ended):
             self._store(ep)
-        self.due = self._updates_due(eps.n_envs, int(self.ended.sum()))
+        return self._updates_due(eps.n_envs, int(self.ended.sum()))
 
     def sample(self):
         """The next update's batches -> (batch, actor batch or None, whether this update logs)."""
@@ -444,40 +459,37 @@ class Trainer:
             for k, v in self.method.stats().items():
                 self.tb.add_scalar(f"replay/{k}", v, c.env_steps)
 
-    def between_episodes(self, stop_at: Optional[int]) -> None:
-        """After a step, between episodes (an episode ended, or the budget is spent): what is due (``eval_due``:
-        an evaluation, which ``drive`` makes, side by side with other runs', into ``evaluated``), and the episodes
-        in flight stored cut when an evaluation or checkpoint is due. ``after_step`` does the rest."""
+    def between_episodes(self, stop_at: Optional[int]) -> Optional[Between]:
+        """After a step, between episodes (an episode ended, or the budget is spent): what is due (None: nothing;
+        an evaluation, which ``drive`` makes, side by side with other runs', into its ``evaluated``), and the
+        episodes in flight stored cut when an evaluation or checkpoint is due. ``after_step`` does the rest."""
         c = self.count
-        self._between = None
-        self.eval_due, self.evaluated = False, None
         finished = c.env_steps >= self.cfg.total_steps
         if not (self.ended.any() or finished):
-            return
+            return None
         stopping = stop_at is not None and c.env_steps >= stop_at and not finished
-        self.eval_due = c.env_steps >= self._next_eval or finished
-        ckpt_due = c.env_steps >= self._next_ckpt or finished or stopping
-        self._between = (finished, stopping, ckpt_due)
-        if self.eval_due or ckpt_due:
+        due = Between(finished, stopping, checkpoint=c.env_steps >= self._next_ckpt or finished or stopping,
+                      evaluate=c.env_steps >= self._next_eval or finished)
+        if due.evaluate or due.checkpoint:
             for ep in self.train_eps.cut_in_flight():
                 self._store(ep)
-        if self.eval_due:
+        if due.evaluate:
             c.wall_time = time.perf_counter() - self._t0
+        return due
 
-    def after_step(self) -> None:
-        """The rest of ``between_episodes``: the evaluation's row (its metrics in ``evaluated``), the checkpoint
-        when due; pause at ``stop_at`` or finish (``state``; ``final_row``)."""
-        if self._between is None:
+    def after_step(self, due: Optional[Between]) -> None:
+        """The rest of ``between_episodes`` (``due``, its value): the evaluation's row (its metrics in
+        ``due.evaluated``, else evaluated here), the checkpoint when due; pause at ``stop_at`` or finish
+        (``state``; ``final_row``)."""
+        if due is None:
             return
         c = self.count
-        finished, stopping, ckpt_due = self._between
-        self._between = None
-        if self.eval_due:
-            row = self._eval_row(self.evaluated)
-            self.eval_due, self.evaluated = False, None
+        finished, stopping = due.finished, due.stopping
+        if due.evaluate:
+            row = self._eval_row(due.evaluated)
             self.bar.set_postfix(success=f"{row['eval_success_rate']:.2f}", ret=f"{row['eval_return']:.1f}")
             self._next_eval = self._next(self.cfg.eval_every)
-        if ckpt_due:
+        if due.checkpoint:
             c.wall_time = time.perf_counter() - self._t0
             self._check_finite()
             self.save_checkpoint()

@@ -298,7 +298,7 @@ class PandaGoalEnv(BaseEnv):
             render_mode, sim_backend, render_backend, robot_init_qpos_noise)
         self.robot_init_qpos_noise = float(robot_init_qpos_noise)
         self._goal_tol_sq = float(np.float32(self.goal_tolerance) ** 2)
-        self._lean = None  # tasks.lean.LeanStep, built at the first lean_step
+        self._lean = None  # tasks.lean.LeanStep, built at the first tasks.lean.lean_step(self, ...)
         super().__init__(*args, robot_uids=robot_uids, num_envs=num_envs, obs_mode=obs_mode,
                          reward_mode=reward_mode, control_mode=control_mode, render_mode=render_mode,
                          sim_backend=sim_backend, render_backend=render_backend, **kwargs)
@@ -365,18 +365,6 @@ class PandaGoalEnv(BaseEnv):
         ``fused`` goes to ``tasks.lean.transform_point32``. Not implemented: such a task takes ManiSkill's
         step (``tasks.lean.unsupported_reason``)."""
         raise NotImplementedError
-
-    # ------------------------------------------------------------------ lean step (one CPU env)
-    def lean_step(self, action: np.ndarray):
-        """ManiSkill's ``step`` for one CPU env without its generic per-step overhead, with the same bits
-        (``tasks/lean.py``). ``action`` (1, A) or (A,) float32 in [-1, 1]; returns (obs (1, D) float32, reward
-        (1,) float32, terminated = success (1,) bool, elapsed steps). No ``info``; no wrappers: the caller
-        applies the time limit. Raises ValueError where ``tasks.lean.unsupported_reason`` names a reason."""
-        lean = self._lean
-        if lean is None or lean.scene is not self.scene:  # first call, or the scene was reconfigured
-            from .lean import LeanStep
-            lean = self._lean = LeanStep(self)
-        return lean.step(action)
 
     # ------------------------------------------------------------------ evaluate
     def evaluate(self):

@@ -1,5 +1,6 @@
 """The lean env step: one CPU env (``physx_cpu``, ``num_envs=1``) stepped without ManiSkill's generic per-step
-Python, with the same bits.
+Python, with the same bits: :func:`lean_step` (``env`` a :class:`PandaGoalEnv`; this module builds on
+``tasks/common.py``, which does not import it).
 
 ManiSkill's ``env.step`` spends more time around PhysX's substeps than in them (CPU B, CloseMicrowave:
 0.87 ms a step, 0.33 ms of it physics): one-element torch tensors, ``to_tensor`` conversions, per-joint drive
@@ -32,7 +33,7 @@ from typing import Optional, Tuple
 import numpy as np
 import torch
 
-from .common import FLAT_OBS_DIM, GOAL_DIM, OBS_DIM, OBS_SLICES
+from .common import FLAT_OBS_DIM, GOAL_DIM, OBS_DIM, OBS_SLICES, PandaGoalEnv
 
 F32 = np.float32
 QPOS, QVEL = OBS_SLICES["qpos"], OBS_SLICES["qvel"]
@@ -128,8 +129,6 @@ def unsupported_reason(env) -> Optional[str]:
     from mani_skill.agents.controllers.pd_joint_pos import PDJointPosController, PDJointPosMimicController
     from mani_skill.envs.sapien_env import BaseEnv
 
-    from .common import PandaGoalEnv
-
     if not isinstance(env, PandaGoalEnv):
         return "not a PandaGoalEnv"
     if env.gpu_sim_enabled or env.num_envs != 1:
@@ -172,9 +171,21 @@ def unsupported_reason(env) -> Optional[str]:
     return None
 
 
+def lean_step(env, action: np.ndarray) -> Tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """ManiSkill's ``step`` of ``env`` (a :class:`PandaGoalEnv`, unwrapped; one CPU env) without its generic
+    per-step overhead, with the same bits. ``action`` (1, A) or (A,) float32 in [-1, 1]; returns (obs (1, D)
+    float32, reward (1,) float32, terminated = success (1,) bool, elapsed steps). No ``info``; no wrappers: the
+    caller applies the time limit. Raises ValueError where :func:`unsupported_reason` names a reason. The
+    env keeps its :class:`LeanStep` (``env._lean``), rebuilt after a reconfiguration."""
+    lean = env._lean
+    if lean is None or lean.scene is not env.scene:  # first call, or the scene was reconfigured
+        lean = env._lean = LeanStep(env)
+    return lean.step(action)
+
+
 class LeanStep:
-    """One env's lean step (built for one scene; :meth:`PandaGoalEnv.lean_step` rebuilds it after a
-    reconfiguration). Task specifics come from the env's ``_lean_task_parts(obs, fused)`` hook."""
+    """One env's lean step (built for one scene; :func:`lean_step` rebuilds it after a reconfiguration). Task
+    specifics come from the env's ``_lean_task_parts(obs, fused)`` hook."""
 
     def __init__(self, env):
         reason = unsupported_reason(env)

@@ -265,17 +265,15 @@ def test_evaluations_side_by_side_equal_each_alone_and_a_failing_one_fails_alone
         alone = [t.evaluate() for t in runs]
         assert len({a["eval_episode_length"] for a in alone}) > 1
         failed = []
-        evaluate_runs(runs, lambda run, e: failed.append(run))
-        assert [t.evaluated for t in runs] == alone and failed == []
+        got = evaluate_runs(runs, lambda run, e: failed.append(run))
+        assert [got[t] for t in runs] == alone and failed == []
 
         def boom(x):
             raise RuntimeError("boom")
         runs[1].agent.deterministic_actor = lambda: boom
-        for t in runs:
-            t.evaluated = None
-        evaluate_runs(runs, lambda run, e: failed.append((run, str(e))))
-        assert failed == [(runs[1], "boom")] and runs[1].evaluated is None
-        assert [runs[0].evaluated, runs[2].evaluated] == [alone[0], alone[2]]
+        got = evaluate_runs(runs, lambda run, e: failed.append((run, str(e))))
+        assert failed == [(runs[1], "boom")] and runs[1] not in got
+        assert [got[runs[0]], got[runs[2]]] == [alone[0], alone[2]]
     finally:
         for t in runs:
             t.close()

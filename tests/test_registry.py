@@ -14,6 +14,7 @@ from maniskill_dualher import methods
 from maniskill_dualher.analysis.plots import color_of
 from maniskill_dualher.config import TASKS
 from maniskill_dualher.experiment import sweep
+from maniskill_dualher.experiment.grid import build_grid
 from maniskill_dualher.sweep import main as run_sweep, train_runs as entry_train_runs  # noqa: F401
 from maniskill_dualher.replay.base import Batch, Episode
 from maniskill_dualher.replay.her import episode_transitions
@@ -112,6 +113,74 @@ def test_an_experiment_with_arms_is_one_registry_entry(tmp_path, monkeypatch):
     assert row["n_a"] == "2" and row["n_b"] == "2" and row["side_a"] == "dual_buffer my_ablation/e_off"
 
 
+def test_an_experiment_lands_in_the_table_and_figure_it_declares(tmp_path, monkeypatch):
+    """A registry entry declaring Table 4 and Fig. 5's ratio panel (a fourth sampling ratio): its rows are in
+    table4_sampling_ratio.csv, its curves in the ratio panel, and nowhere it did not declare."""
+    from maniskill_dualher.experiment import registry
+    exp = registry.Experiment("ratio_08", "A fourth R/E ratio", "chain", methods="sampling_ratio",
+                              arms=(registry.Arm("0.8/0.2", ("adapt.replay.ratio=0.8/0.2",)),),
+                              feeds=(registry.TABLE4_CSV, registry.FIG5_RATIOS))
+    monkeypatch.setitem(registry.EXPERIMENTS, exp.name, exp)
+    labels = _collect_labels(monkeypatch)
+    out = tmp_path / "sweep"
+    assert run_sweep(["--preset", "smoke", "--out", str(out), "--backend", "inline", "--seeds", "1",
+                      "--experiments", "ratio_08"]) == 0
+    t4 = _rows(out / "table4_sampling_ratio.csv")
+    assert {(r["experiment"], r["variant"]) for r in t4} == {("ratio_08", "0.8/0.2")}
+    assert not _rows(out / "ablations.csv") and not _rows(out / "table5_multitask.csv")
+    assert "dual buffer, P(R)/P(E) = 0.8/0.2" in labels and (out / "fig5_multitask.png").is_file()
+    assert not (out / "fig6_ablations.png").exists()
+
+
+TINY_TASK = "TinyReach-v1"
+
+
+@pytest.fixture
+def tiny_task():
+    """A task registered at run time: its class (ReachTarget with a wider tolerance: the whole "file" of a
+    task), its ManiSkill registration (what its import line does) and its id in the catalog (config.TASKS)."""
+    from mani_skill.utils.registration import REGISTERED_ENVS, register_env
+    from maniskill_dualher.tasks.reach_target import ReachTargetEnv
+
+    class TinyReachEnv(ReachTargetEnv):
+        goal_tolerance = 0.12
+
+    if TINY_TASK not in REGISTERED_ENVS:
+        register_env(TINY_TASK, max_episode_steps=50)(TinyReachEnv)
+    TASKS.append(TINY_TASK)
+    yield TINY_TASK
+    TASKS.remove(TINY_TASK)
+
+
+def test_a_task_is_its_file_and_one_id_and_the_papers_chain_is_unchanged(tiny_task, tmp_path, monkeypatch):
+    """With a task added to the catalog, the paper's plan is the same runs, on the paper's chain and target (its
+    tables unchanged); the task itself plans, trains a few hundred steps and is reported with no other edit."""
+    from maniskill_dualher.experiment.registry import PAPER_CHAIN
+    from maniskill_dualher.analysis import tables
+
+    def plan(*argv):
+        d = sweep.definition_from_args(sweep.make_parser().parse_args(list(argv)))
+        return d, sorted((n.rel, json.dumps(n.cells, sort_keys=True)) for n in build_grid(d))
+
+    TASKS.remove(tiny_task)
+    before = {p: plan("--preset", p) for p in ("quick", "reference")}
+    TASKS.append(tiny_task)
+    for p, (d, nodes) in before.items():
+        d2, nodes2 = plan("--preset", p)
+        assert nodes2 == nodes and d2 == d, p          # the same definition (sweep.json) and runs
+    assert before["quick"][0]["task_order"] == list(PAPER_CHAIN) and tables.PAPER_TARGET == PAPER_CHAIN[-1]
+    labels = _collect_labels(monkeypatch)
+    out = tmp_path / "sweep"
+    assert run_sweep(["--preset", "smoke", "--out", str(out), "--backend", "inline", "--experiments", "single",
+                      "--tasks", tiny_task, "--methods", "sac_her_per", "--seeds", "1", "--source-steps", "300"]) == 0
+    single = _rows(out / "single_task.csv")
+    assert {r["task"] for r in single} == {tiny_task} and {r["n_seeds"] for r in single} == {"1"}
+    cfg = json.loads(next((out / "runs" / "single").glob(f"{tiny_task}-*/config.json")).read_text())
+    assert cfg["env_id"] == tiny_task and cfg["total_steps"] == 300
+    assert "SAC+HER+PER" in labels and (out / "fig4_single_task.png").is_file()
+    assert tiny_task in (out / "summary.md").read_text()
+
+
 def test_unknown_method_names_the_registry(capsys):
     assert run_sweep(["--methods", "nope", "--dry-run"]) == 2
     err = capsys.readouterr().err.strip()
@@ -135,6 +204,35 @@ def _imports(path: Path, package: str):
             out.add(name)
             out |= {f"{name}.{a.name}" for a in node.names}
     return {m for m in out if m.split(".")[0] == package}
+
+
+def test_no_import_circles_among_the_tasks():
+    """tasks/ (maniskill_dualher.tasks): no cycle, deferred imports included; the lean step builds on the task
+    base (tasks/lean.py imports tasks/common.py, never the other way)."""
+    files = {".".join(p.relative_to(REPO).with_suffix("").parts): p
+             for p in (REPO / "tasks").glob("*.py") if p.name != "__init__.py"}
+    imports = lambda p: _imports(p, "tasks") | _imports(p, "maniskill_dualher")  # noqa: E731
+    graph = {m: {i.replace("maniskill_dualher.tasks.", "tasks.") for i in imports(p)} & set(files) - {m}
+             for m, p in files.items()}
+    _no_cycle(graph)
+    assert "tasks.common" in graph["tasks.lean"] and "tasks.lean" not in graph["tasks.common"]
+
+
+def _no_cycle(graph) -> None:
+    state = {}
+
+    def visit(m, path):
+        if state.get(m) == 1:
+            raise AssertionError("import circle: " + " -> ".join(path + [m]))
+        if state.get(m) == 2:
+            return
+        state[m] = 1
+        for n in graph[m]:
+            visit(n, path + [m])
+        state[m] = 2
+
+    for m in graph:
+        visit(m, [])
 
 
 def test_no_import_circles_among_core_modules():
@@ -199,16 +297,14 @@ def test_analysis_needs_no_torch_no_simulator():
 
 
 def test_docs_experiment_table_is_the_registry():
-    """docs/experiments.md lists every experiment once, with every one of its arms, and nothing else."""
-    from pathlib import Path
-    from maniskill_dualher.experiment.registry import EXPERIMENTS
-    text = (Path(__file__).resolve().parents[1] / "docs" / "experiments.md").read_text()
-    rows = {}
-    for line in text.splitlines():
-        cells = [c.strip() for c in line.strip().strip("|").split("|")]
-        if line.startswith("| `") and len(cells) == 3:
-            rows[cells[0].strip("`")] = cells[1]
-    assert set(rows) == set(EXPERIMENTS)
-    for name, exp in EXPERIMENTS.items():
-        for arm in exp.arms:
-            assert arm.name in rows[name], f"docs/experiments.md: experiment {name} does not list arm {arm.name}"
+    """docs/experiments.md's experiment table is the registry's, as `python -m maniskill_dualher.experiment.registry
+    --markdown` prints it (`--update-docs docs/experiments.md` writes it): every experiment once, every arm with
+    its doc, what each feeds."""
+    from maniskill_dualher.experiment import registry
+    text = (REPO / "docs" / "experiments.md").read_text()
+    assert registry.docs_with_table(text) == text, \
+        "docs/experiments.md: run python -m maniskill_dualher.experiment.registry --update-docs docs/experiments.md"
+    table = text[text.index(registry.DOCS_BEGIN):text.index(registry.DOCS_END)]
+    for name, exp in registry.EXPERIMENTS.items():
+        row = next(ln for ln in table.splitlines() if ln.startswith(f"| `{name}` |"))
+        assert all(f"`{a.name}`" in row for a in exp.arms) and all(a.doc in row for a in exp.arms)

@@ -650,7 +650,7 @@ def test_budget_trend_and_curve_on_synthetic_scores(tmp_path):
 
     def make(ratio_of):
         out = []
-        for factor, cells in budget.BUDGETS:
+        for factor, cells in budget.budgets():
             exp, arm = cells[-1]
             for s in range(12):
                 her = 100 * factor * np.exp(rng.normal(0, 0.1))

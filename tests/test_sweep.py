@@ -22,7 +22,7 @@ from maniskill_dualher.config import TASKS, ReplayConfig, RunConfig, SACConfig
 from maniskill_dualher.experiment import protocol, sweep
 from maniskill_dualher.sweep import main as run_sweep, train_runs as entry_train_runs  # noqa: F401
 from maniskill_dualher.experiment.backends import run_grid
-from maniskill_dualher.experiment.grid import build_grid
+from maniskill_dualher.experiment.grid import build_grid, seed_span
 from maniskill_dualher.train import train_chain
 
 REPO = Path(__file__).resolve().parents[1]
@@ -713,15 +713,25 @@ def test_capped_arms_are_named_and_an_explicit_request_beyond_a_cap_is_refused(t
     assert "--allow-capped" in sweep.make_parser().format_help()
 
 
-# ----------------------------------------------------------------------------- the reference's seed table
+# ----------------------------------------------------------------------------- the reference's seeds
 def _definition(*argv):
     return sweep.definition_from_args(sweep.make_parser().parse_args(list(argv)))
 
 
+def _reference_cells():
+    """(experiment, arm, method, task) -> the seeds results/reference/scores.csv has for it (single and adapt)."""
+    out = defaultdict(set)
+    with open(REPO / "results" / "reference" / "scores.csv", newline="") as f:
+        for r in csv.DictReader(f):
+            if r["role"] in ("single", "adapt"):
+                out[(r["experiment"], r["arm"], r["method"], r["task"])].add(int(r["seed"]))
+    return out
+
+
 def test_the_reference_plan_is_exactly_the_cells_of_results_reference():
     """`sweep --preset reference --experiments all` plans the (experiment, arm, method, task, seed, stage) cells of
-    results/reference/scores.csv, no more and no fewer: presets.REFERENCE_SEEDS and the committed results cannot
-    drift apart (add seeds to the reference, then edit the table)."""
+    results/reference/scores.csv, no more and no fewer: the preset reads each arm's seeds from those cells, so
+    the two cannot drift apart (seeds merged into the reference are planned with nothing to edit)."""
     key = ("experiment", "arm", "method", "task", "seed", "stage")
     d = _definition("--preset", "reference", "--experiments", "all")
     planned = {tuple(str(c[k]) for k in key) for n in build_grid(d) for c in n.cells}
@@ -733,37 +743,54 @@ def test_the_reference_plan_is_exactly_the_cells_of_results_reference():
     assert {k: d[k] for k in MERGE_SAME} == {k: ref[k] for k in MERGE_SAME}
 
 
-def test_the_seed_table_names_every_arm_and_only_real_cells():
-    from maniskill_dualher.config import TASKS
-    from maniskill_dualher.experiment.presets import REFERENCE_SEEDS
+def test_the_reference_seeds_are_any_set_its_cells_have(tmp_path, monkeypatch, capsys):
+    """An arm's seeds in the reference preset are exactly those its cells have in the folder (here 0-3 and 32-35,
+    not a count from 0), per method where they differ; an arm without cells there has none."""
+    from maniskill_dualher.experiment import presets
+    from maniskill_dualher.experiment.grid import seeds_for
     from maniskill_dualher.experiment.registry import EXPERIMENTS
-    arms = {f"{e.name}:{a.name}" for e in EXPERIMENTS.values() for a in e.arms}
-    assert arms <= {":".join(k.split(":")[:2]) for k in REFERENCE_SEEDS}, "an arm without seeds in the table"
-    for k, n in REFERENCE_SEEDS.items():
-        exp, arm, *rest = k.split(":")
-        assert f"{exp}:{arm}" in arms and isinstance(n, int) and n >= 0, k
-        assert not rest or (len(rest) == 1 and rest[0] in set(EXPERIMENTS[exp].method_names()) | set(TASKS)), k
+    rows = [{"experiment": "warm_start", "arm": "warm", "method": m, "task": "CloseMicrowave-v1", "seed": s,
+             "stage": 2, "role": "adapt"} for m, seeds in (("dual_buffer", (0, 1, 2, 3, 32, 33, 34, 35)),
+                                                         ("sac_her_per", (5,))) for s in seeds]
+    rows.append(dict(rows[0], stage=0, role="source", task="ReachTarget-v1", seed=99))  # a source stage: not a seed
+    with open(tmp_path / "scores.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    monkeypatch.setattr(presets.PRESETS["reference"], "seeds_from", str(tmp_path))
+    d = _definition("--preset", "reference", "--experiments", "warm_start")
+    exp = EXPERIMENTS["warm_start"]
+    assert seeds_for(d, exp, exp.arm("warm"), "dual_buffer", "CloseMicrowave-v1") == [0, 1, 2, 3, 32, 33, 34, 35]
+    assert seeds_for(d, exp, exp.arm("warm"), "sac_her_per", "CloseMicrowave-v1") == [5]
+    assert seeds_for(d, exp, exp.arm("paper"), "dual_buffer", "CloseMicrowave-v1") == []
+    adapt = {(c["method"], c["seed"]) for n in build_grid(d) for c in n.cells if c["role"] == "adapt"}
+    assert adapt == {("dual_buffer", s) for s in (0, 1, 2, 3, 32, 33, 34, 35)} | {("sac_her_per", 5)}
+    assert run_sweep(["--preset", "reference", "--experiments", "warm_start", "--dry-run",
+                      "--out", str(tmp_path / "o")]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert "seeds: warm_start/warm dual_buffer: 8 (0-3, 32-35), capped: the preset lists 16 [seed table]" in lines
+    assert "seeds: warm_start/warm sac_her_per: 1 (5), capped: the preset lists 16 [seed table]" in lines
 
 
-def test_the_seed_table_decides_by_default_and_explicit_seeds_drop_it(tmp_path, capsys):
-    """--preset reference alone: the table (over max_seeds, per method/task where it says so); --seeds or
+def test_the_reference_seeds_decide_by_default_and_explicit_seeds_drop_them(tmp_path, capsys):
+    """--preset reference alone: the cells' seeds (over max_seeds, per method/task where they differ); --seeds or
     --chain-seeds: the table is dropped and the caps apply, a request beyond one refused in one line, exit 2."""
     from maniskill_dualher.experiment.grid import seeds_for
-    from maniskill_dualher.experiment.presets import REFERENCE_SEEDS
     from maniskill_dualher.experiment.registry import EXPERIMENTS
-    exp = EXPERIMENTS["her_episode"]          # max_seeds 8, 32 seeds in the reference
+    cells = _reference_cells()
+    exp = EXPERIMENTS["her_episode"]          # max_seeds 8, more seeds in the reference
     arm = exp.arm("her_episode")
+    have = sorted(cells[("her_episode", "her_episode", "dual_buffer", "CloseMicrowave-v1")])
     d = _definition("--preset", "reference", "--experiments", "her_episode")
-    assert set(d["arm_seeds"]) == {"her_episode:paper", "her_episode:her_episode"}  # only the selected arms' keys
-    assert seeds_for(d, exp, arm, "dual_buffer", "CloseMicrowave-v1") == list(range(REFERENCE_SEEDS["her_episode:her_episode"]))
-    assert REFERENCE_SEEDS["her_episode:her_episode"] > exp.max_seeds
+    assert {k.split(":")[0] for k in d["arm_seeds"]} == {"her_episode"}  # only the selected arms' cells
+    assert seeds_for(d, exp, arm, "dual_buffer", "CloseMicrowave-v1") == have
+    assert len(have) > exp.max_seeds
     single = EXPERIMENTS["single"]
     ds = _definition("--preset", "reference", "--experiments", "single")
-    counts = {(m, t): len(seeds_for(ds, single, single.arm("paper"), m, t)) for m in ("sac", "sac_her_per")
-              for t in ("ReachTarget-v1", "CloseBox-v1")}
-    assert counts == {("sac", "ReachTarget-v1"): REFERENCE_SEEDS["single:paper:ReachTarget-v1"],
-                      ("sac", "CloseBox-v1"): REFERENCE_SEEDS["single:paper:CloseBox-v1"],
-                      ("sac_her_per", "ReachTarget-v1"): 0, ("sac_her_per", "CloseBox-v1"): 0}
+    got = {(m, t): seeds_for(ds, single, single.arm("paper"), m, t) for m in ("sac", "sac_her_per")
+           for t in ("ReachTarget-v1", "CloseBox-v1")}
+    assert got == {(m, t): sorted(cells[("single", "paper", m, t)]) for m, t in got}
+    assert got[("sac_her_per", "ReachTarget-v1")] == [] and got[("sac", "CloseBox-v1")]
     for flag in ("--seeds", "--chain-seeds"):
         d2 = _definition("--preset", "reference", "--experiments", "her_episode", flag, "4")
         assert "arm_seeds" not in d2 and seeds_for(d2, exp, arm, "dual_buffer", "CloseMicrowave-v1") == [0, 1, 2, 3]
@@ -777,11 +804,43 @@ def test_the_seed_table_decides_by_default_and_explicit_seeds_drop_it(tmp_path, 
     # the table: every arm gets a seeds: line saying what it plans and whether it is capped
     assert run_sweep(base) == 0
     lines = capsys.readouterr().out.splitlines()
-    n = REFERENCE_SEEDS["her_episode:her_episode"]
-    assert f"seeds: her_episode/her_episode: {n} (0-{n - 1}) [seed table]" in lines
+    assert f"seeds: her_episode/her_episode: {len(have)} ({seed_span(have)}) [seed table]" in lines
     assert "seeds: her_episode/paper: 0, capped: the preset lists 16 [seed table]" in lines
-    assert "capped: her_episode/paper runs 0 of the preset's 16 seeds (seed table): not in results/reference" in lines
+    assert ("capped: her_episode/paper runs 0 of the preset's 16 seeds (seed table): not in results/reference "
+            "(--chain-seeds 16 runs it at the preset's 16)") in lines
     assert any(ln.startswith("cost: ") for ln in lines) and not out.exists()
     # explicit seeds are named as asked, not as a count from 0
     assert run_sweep([*base, "--chain-seeds", "4,5,6,7"]) == 0
     assert "seeds: her_episode/her_episode: 4 (4-7)" in capsys.readouterr().out.splitlines()
+
+
+def test_a_reference_sweep_folder_with_the_older_seed_table_is_the_same_sweep(tmp_path, capsys):
+    """A sweep.json whose arm_seeds are the older counts per arm (before the seeds were read from the reference)
+    holds the same sweep when its runs are the same: it resumes without --force; other runs are refused."""
+    out = tmp_path / "o"
+    d = _definition("--preset", "reference", "--experiments", "warm_start:warm_low_lr")
+    d["runs"] = sorted(n.rel for n in build_grid(d))
+    old = dict(d, arm_seeds={"warm_start:warm_low_lr": 16})
+    rundir.write_json(out / rundir.SWEEP, old)
+    args = ["--preset", "reference", "--experiments", "warm_start:warm_low_lr", "--out", str(out), "--dry-run"]
+    assert run_sweep(args) == 0
+    rundir.write_json(out / rundir.SWEEP, dict(old, runs=d["runs"][:-1]))
+    capsys.readouterr()
+    assert run_sweep(args) == 2 and "holds a different sweep" in capsys.readouterr().err
+
+
+def test_a_new_experiment_has_no_reference_seeds_and_its_dry_run_says_how_to_ask(tmp_path, monkeypatch, capsys):
+    """One registry entry and nothing else: the reference preset plans it at no seeds (it is not in
+    results/reference), says in one line how to ask for the preset's, and plans them when asked."""
+    from maniskill_dualher.experiment import registry
+    exp = registry.Experiment("my_new", "a lower adaptation learning rate", "chain", methods="transfer",
+                              arms=(registry.Arm("low_lr", ("adapt.sac.lr=3e-4",)),))
+    monkeypatch.setitem(registry.EXPERIMENTS, exp.name, exp)
+    base = ["--preset", "reference", "--experiments", "my_new", "--out", str(tmp_path / "o"), "--dry-run"]
+    assert run_sweep(base) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert ("capped: my_new/low_lr runs 0 of the preset's 16 seeds (seed table): not in results/reference "
+            "(--chain-seeds 16 runs it at the preset's 16)") in out
+    assert out[-1] == "0 runs; 0 env steps to go; nothing written (--dry-run)"
+    assert run_sweep([*base, "--chain-seeds", "16"]) == 0
+    assert capsys.readouterr().out.splitlines()[-1].startswith(f"{2 * 16 * 3} runs; ")

@@ -1,6 +1,6 @@
 """The budget curve: the two methods' adaptation at 1x, 2x, 4x and 8x the adaptation budget, from scores.
 
-At each budget (``BUDGETS``: the cells that hold it, first one wins per seed) the ratio of mean successful
+At each budget (``budgets()``: the cells that hold it, first one wins per seed) the ratio of mean successful
 adaptation episodes, dual buffer / SAC+HER+PER, with its 95% interval (``stats.ratio_ci``, unpaired: the two
 methods adapt their own priors), and the difference in final evaluation success with ``stats.compare``'s
 interval. A count ratio drifts toward 1 once both policies saturate, so the count alone cannot show the
@@ -21,17 +21,21 @@ from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
+from ..experiment import registry
 from . import stats
 
 DUAL, HER = "dual_buffer", "sac_her_per"
 COUNT, FINAL = "successful_train_episodes", "final_eval_success_rate"
-# budget factor -> the (experiment, arm) cells adapting at it, in order of preference per seed
-BUDGETS: Tuple[Tuple[float, Tuple[Tuple[str, str], ...]], ...] = (
-    (1.0, (("transfer", "paper"),)),
-    (2.0, (("budget", "x2"),)),
-    (4.0, (("budget", "x4"), ("regime", "long"))),   # the same runs' configuration
-    (8.0, (("budget", "x8"),)),
-)
+
+
+def budgets() -> Tuple[Tuple[float, Tuple[Tuple[str, str], ...]], ...]:
+    """Budget factor -> the (experiment, arm) cells adapting at it, in registry order (the order of preference
+    per seed): every arm that feeds budget.csv (registry ``feeds``), at its ``Arm.adapt_steps_factor``."""
+    by_factor: Dict[float, List[Tuple[str, str]]] = {}
+    for exp, arm in registry.arms_feeding(registry.BUDGET_CSV):
+        by_factor.setdefault(float(registry.EXPERIMENTS[exp].arm(arm).adapt_steps_factor), []).append((exp, arm))
+    return tuple((f, tuple(cells)) for f, cells in sorted(by_factor.items()))
+
 MIN_BUDGETS = 3
 RATE_MARGIN = 0.1   # final evaluation success: 10 percentage points (claims.RATE_MARGIN)
 AHEAD_DUAL, AHEAD_HER, UNDECIDED = "dual_buffer ahead", "sac_her_per ahead", "undecided"
@@ -65,7 +69,7 @@ def _order(low: float, high: float, one: float) -> str:
 def budget_rows(scores: Sequence[Dict[str, str]], resamples: int = 10_000) -> List[dict]:
     """One row per budget at which both methods have an adaptation count."""
     rows = []
-    for factor, cells in BUDGETS:
+    for factor, cells in budgets():
         d, h = budget_values(scores, cells, DUAL, COUNT), budget_values(scores, cells, HER, COUNT)
         if not d or not h:
             continue
@@ -111,7 +115,7 @@ def trend(scores: Sequence[Dict[str, str]], resamples: int = 10_000, seed: int =
     """The slope of log2(dual/HER count ratio) per doubling of the budget, its percentile interval and
     p-value (2 min(P*(slope <= 0), P*(slope >= 0)), the interval inverted); None below MIN_BUDGETS budgets."""
     used, dual, her = [], [], []
-    for factor, cells in BUDGETS:
+    for factor, cells in budgets():
         d, h = budget_values(scores, cells, DUAL, COUNT), budget_values(scores, cells, HER, COUNT)
         if min(len(d), len(h)) >= stats.MIN_SEEDS:
             used.append(factor)

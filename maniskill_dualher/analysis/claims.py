@@ -306,20 +306,8 @@ def _side_rows(scores: Sequence[Dict[str, str]], side: Side, metric: str) -> Dic
     return by_seed
 
 
-def side_values(scores: Sequence[Dict[str, str]], side: Side, metric: str) -> List[float]:
-    """One value per seed (ascending seed) of a side's cell and metric."""
-    by_seed = _side_rows(scores, side, metric)
-    return [float(by_seed[s]["value"]) for s in sorted(by_seed)]
-
-
 def _machines(rows: Sequence[Dict[str, str]]) -> Counter:
     return Counter(r.get("machine") or "unknown" for r in rows)
-
-
-def side_machines(scores: Sequence[Dict[str, str]], c: Claim) -> str:
-    """The CPUs both sides' runs ran on ("; "-joined, sorted)."""
-    rows = list(_side_rows(scores, c.a, c.metric).values()) + list(_side_rows(scores, c.b, c.metric).values())
-    return "; ".join(sorted(_machines(rows))) if rows else ""
 
 
 def machine_balance(rows_a: Sequence[Dict[str, str]], rows_b: Sequence[Dict[str, str]]) -> Tuple[str, str]:
@@ -469,7 +457,7 @@ def trend_row(scores, resamples: int) -> dict:
            "side_a": "dual_buffer/sac_her_per at the largest budget", "side_b": "dual_buffer/sac_her_per at 1x"}
     t = budget.trend(scores, resamples)
     if t is None:
-        have = [f"{f:g}x" for f, cells in budget.BUDGETS
+        have = [f"{f:g}x" for f, cells in budget.budgets()
                 if min(len(budget.budget_values(scores, cells, m, budget.COUNT)) for m in (DUAL, HER))
                 >= stats.MIN_SEEDS]
         return {**row, "verdict": f"not measured (needs >= {budget.MIN_BUDGETS} budgets with >= {stats.MIN_SEEDS} "
@@ -480,7 +468,7 @@ def trend_row(scores, resamples: int) -> dict:
         verdict = ("supported" if t["low"] > 0 else "contradicted" if t["high"] < 0 else
                    "inconclusive (the slope's interval includes 0)")
     budgets = ", ".join(f"{f:g}x" for f in t["budgets"])
-    cells = {cell for f, cs in budget.BUDGETS if f in t["budgets"] for cell in cs}
+    cells = {cell for f, cs in budget.budgets() if f in t["budgets"] for cell in cs}
     used = [r for r in scores if (r["experiment"], r["arm"]) in cells and r["role"] == "adapt"
             and r["metric"] == budget.COUNT and r["method"] in (DUAL, HER)]
     row["machines"] = "; ".join(sorted(_machines(used)))

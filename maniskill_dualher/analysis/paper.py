@@ -6,16 +6,13 @@ methods (registered in ``methods.py``).
 """
 from __future__ import annotations
 
-from maniskill_dualher.config import TASKS
+from maniskill_dualher.experiment import registry
 from maniskill_dualher.methods import METHOD_SPECS
 
-PAPER_RATIOS = ((0.5, 0.5), (0.6, 0.4), (0.7, 0.3))   # Table 4
-SCRATCH = "from scratch"                              # the chain label of the from-scratch control
-PAPER_RATIO = (0.6, 0.4)                                 # the ratio the paper reports as best
 PAPER_TABLE4 = {(0.6, 0.4): "250", (0.5, 0.5): "154", (0.7, 0.3): "<75"}   # successful CloseMicrowave attempts
 PAPER_TABLE5 = {"sac_her_per": "<45", "dual_buffer": "250"}                # same metric, ours at 0.6/0.4
-PAPER_TARGET = "CloseMicrowave-v1"
-PAPER_CHAIN = " > ".join(TASKS)                      # ReachTarget -> CloseBox -> CloseMicrowave
+PAPER_TARGET = registry.PAPER_TARGET                  # CloseMicrowave (the chain is experiment data)
+PAPER_CHAIN = " > ".join(registry.PAPER_CHAIN)        # the chain as a cell names it: ReachTarget > ... > target
 PAPER_ADAPT_BUDGET = "120 epochs x 200 episodes x 150 steps = 3.6M env steps"
 PAPER_ADAPT_STEPS = 120 * 200 * 150
 PAPER_TABLE3 = [  # (hyperparameter, paper value, how to read ours from a RunConfig)

@@ -2,12 +2,14 @@
 
 * Curves: the mean over seeds with a 95% percentile-bootstrap band over seeds (``mean_band``), at the
   evaluation points every seed of a curve has: a band of a success rate stays in [0, 1].
-* Names: methods by their registry display name (``methods.METHOD_SPECS``), experiments and arms by their
-  registry label (``experiment/registry.py``; an optional ``label`` field, else the name).
+* Names: methods by their registry display name (``methods.METHOD_SPECS``), experiments by their registry
+  title, arms by their name (``experiment/registry.py``).
+* Which rows a figure draws: the cells whose experiment or arm declares it in ``feeds`` (registry file names,
+  ``fig5_multitask.png:ratio`` for Fig. 5's ratio panel); nothing is inferred from an experiment's shape.
 * Colours: one per arm in every figure. A method's paper treatment (an arm whose settings change nothing,
-  in a chain or single-task experiment) is drawn in the method's registry colour; every other arm gets the
-  registry's ``color`` if it has one, else a fixed colour from ``ARM_PALETTE`` in registry order. Line style
-  tells the methods apart (``METHOD_STYLES``), so one arm of two methods shares its colour.
+  in a chain or single-task experiment) is drawn in the method's registry colour; every other arm gets a
+  fixed colour from ``ARM_PALETTE`` in registry order. Line style tells the methods apart
+  (``METHOD_STYLES``), so one arm of two methods shares its colour.
 * Only what differs: success is shown, the evaluation return is not (sparse reward and episodes that end on
   success make them equal).
 
@@ -22,9 +24,11 @@ from typing import Dict, List, Optional, Sequence, Tuple
 import numpy as np
 
 from ..config import TASKS
-from ..experiment.registry import EXPERIMENTS, KINDS, PAPER_ARM, is_paper_treatment
+from ..experiment import registry
+from ..experiment.registry import EXPERIMENTS, KINDS, PAPER_ARM, PAPER_CHAIN, is_paper_treatment
 from ..fileio import atomic_write_with
 from ..methods import METHOD_SPECS
+from . import stats
 
 SINGLE_KIND, CHAIN_KIND, SCRATCH_KIND = KINDS
 LEVEL = 0.95
@@ -47,21 +51,13 @@ def method_label(method: str) -> str:
     return spec.display if spec else method
 
 
-def _arm_obj(experiment: str, arm: str):
-    e = EXPERIMENTS.get(experiment)
-    return next((a for a in e.arms if a.name == arm), None) if e else None
-
-
 def experiment_label(experiment: str) -> str:
     e = EXPERIMENTS.get(experiment)
-    return (getattr(e, "label", None) or e.title) if e else experiment
+    return e.title if e else experiment
 
 
 def arm_label(experiment: str, arm: str) -> str:
-    """The arm's display label: registry ``label``, else its name; a paper treatment says so."""
-    a = _arm_obj(experiment, arm)
-    if a is not None and getattr(a, "label", None):
-        return a.label
+    """The arm's display label: its name; a paper treatment says so."""
     if is_paper_treatment(experiment, arm):
         return "paper's settings"
     e = EXPERIMENTS.get(experiment)
@@ -76,10 +72,7 @@ def _arm_colours() -> Dict[Tuple[str, str], str]:
         for a in e.arms:
             if is_paper_treatment(e.name, a.name):
                 continue
-            c = getattr(a, "color", None)
-            if not c:
-                c, k = ARM_PALETTE[k % len(ARM_PALETTE)], k + 1
-            out[(e.name, a.name)] = c
+            out[(e.name, a.name)], k = ARM_PALETTE[k % len(ARM_PALETTE)], k + 1
     return out
 
 
@@ -113,24 +106,12 @@ def curves_by(curves: Sequence[Dict[str, str]], where, key) -> Dict[tuple, Dict[
     return out
 
 
-def boot_mean_ci(y: np.ndarray, level: float = LEVEL, resamples: int = RESAMPLES, seed: int = 0):
-    """Percentile-bootstrap interval of the mean over rows (seeds) of ``y`` (seeds, points), per column: inside the
-    values' range, so a success rate's band stays in [0, 1]. One seed: the point itself."""
-    y = np.asarray(y, float)
-    if y.shape[0] < 2:
-        return y[0], y[0]
-    idx = np.random.default_rng(seed).integers(0, y.shape[0], (resamples, y.shape[0]))
-    means = y[idx].mean(axis=1)
-    q = (1 - level) / 2
-    return np.quantile(means, q, axis=0), np.quantile(means, 1 - q, axis=0)
-
-
 def mean_band(by_seed: Dict[int, Dict[int, dict]], key: str):
     steps = sorted(set.intersection(*[set(v) for v in by_seed.values()]))
     if not steps:
         return np.array([]), np.array([]), np.array([]), np.array([])
     y = np.array([[float(by_seed[s][t][key]) for t in steps] for s in sorted(by_seed)])
-    lo, hi = boot_mean_ci(y)
+    lo, hi = stats.boot_mean_ci(y, LEVEL, RESAMPLES)
     return np.array(steps), y.mean(axis=0), lo, hi
 
 
@@ -176,8 +157,16 @@ def _task_order(t: str) -> int:
     return TASKS.index(t) if t in TASKS else len(TASKS)
 
 
-def _experiments(kind: str, default: Optional[bool] = None) -> List[str]:
-    return [n for n, e in EXPERIMENTS.items() if e.kind == kind and (default is None or e.default == default)]
+def _fed(figure: str):
+    """A curve or score row's test: its cell (experiment, arm) feeds ``figure`` (registry ``feeds``)."""
+    cells = set(registry.arms_feeding(figure))
+    return lambda r: (r["experiment"], r["arm"]) in cells
+
+
+def _transfer_experiments() -> List[str]:
+    """The chain experiments of Fig. 5's main panels: the paper's transfer, whose paper arm holds the paper
+    treatment's runs."""
+    return [n for n in registry.experiments_feeding(registry.FIG5) if EXPERIMENTS[n].kind == CHAIN_KIND]
 
 
 def _legend_below(fig, axes, ncol: int) -> None:
@@ -193,8 +182,8 @@ def _legend_below(fig, axes, ncol: int) -> None:
 
 # --------------------------------------------------------------------------- Fig. 4
 def plot_fig4(curves, path: Path, reference=None) -> bool:
-    singles = set(_experiments(SINGLE_KIND, default=True))
-    single = lambda r: r["role"] == SINGLE_KIND and r["experiment"] in singles  # noqa: E731
+    fed = _fed(registry.FIG4)
+    single = lambda r: r["role"] == SINGLE_KIND and fed(r)  # noqa: E731
     tasks = sorted({r["task"] for r in curves if single(r)}, key=_task_order)
     if not tasks:
         return False
@@ -219,23 +208,23 @@ def plot_fig4(curves, path: Path, reference=None) -> bool:
 
 # --------------------------------------------------------------------------- Fig. 5
 def plot_fig5(curves, path: Path, reference=None) -> bool:
-    chain = [n for n in _experiments(CHAIN_KIND, default=True) if len(EXPERIMENTS[n].arms) == 1]
-    scratch = _experiments(SCRATCH_KIND, default=True)
-    studies = [n for n in _experiments(CHAIN_KIND, default=True) if len(EXPERIMENTS[n].arms) > 1]
-    shown = set(chain) | set(scratch) | set(studies)
-    adapt = [r for r in curves if r["role"] == "adapt" and r["experiment"] in shown]
+    fed_main, fed_ratios = _fed(registry.FIG5), _fed(registry.FIG5_RATIOS)
+    scratch = [n for n in registry.experiments_feeding(registry.FIG5) if EXPERIMENTS[n].kind == SCRATCH_KIND]
+    adapt = [r for r in curves if r["role"] == "adapt" and (fed_main(r) or fed_ratios(r))]
     if not adapt:
         return False
     target = sorted({r["task"] for r in adapt}, key=_task_order)[-1]
+    chains = sorted({r["chain"] for r in adapt if r["task"] == target and " > " in r["chain"]})
+    sources = chains[0].split(" > ")[:-1] if chains else list(PAPER_CHAIN[:-1])
     plt = _plt()
-    main = lambda r: r["task"] == target and r["role"] == "adapt" and r["experiment"] in set(chain) | set(scratch)  # noqa: E731
+    main = lambda r: r["task"] == target and r["role"] == "adapt" and fed_main(r)  # noqa: E731
     g = curves_by(curves, main, lambda r: (r["experiment"], r["arm"], r["method"]))
     order = sorted(g, key=lambda k: (k[0] in scratch, list(METHOD_SPECS).index(k[2]) if k[2] in METHOD_SPECS else 9))
     label = lambda k: method_label(k[2]) + (", from scratch" if k[0] in scratch else ", transfer")  # noqa: E731
     groups = {label(k): (g[k], color_of(k[2], k[1], k[0]), *style_of(k[2])) for k in order}
     ref = {label(k): v for k, v in curves_by(reference, main, lambda r: (r["experiment"], r["arm"], r["method"])).items()} \
         if reference else None
-    ratios = curves_by(curves, lambda r: r["task"] == target and r["role"] == "adapt" and r["experiment"] in studies,
+    ratios = curves_by(curves, lambda r: r["task"] == target and r["role"] == "adapt" and fed_ratios(r),
                        lambda r: (r["experiment"], r["arm"], r["method"]))
     rgroups = {f"{method_label(k[2])}, P(R)/P(E) = {arm_label(k[0], k[1]) if not is_paper_treatment(k[0], k[1]) else k[1]}":
                (ratios[k], color_of(k[2], k[1], k[0]), *style_of(k[2])) for k in ratios}
@@ -258,7 +247,7 @@ def plot_fig5(curves, path: Path, reference=None) -> bool:
     fig.legend(*axes[0].get_legend_handles_labels(), loc="upper center", bbox_to_anchor=(0.36, 0.0), ncol=3,
                frameon=False)
     fig.suptitle(f"Multi-task transfer (paper Fig. 5): adaptation on {target} after "
-                 f"{' > '.join(t.split('-')[0] for t in TASKS[:-1])}, vs from scratch\n"
+                 f"{' > '.join(t.split('-')[0] for t in sources)}, vs from scratch\n"
                  "dotted: each prior's step-0 (zero-shot) score; mean over seeds, 95% bootstrap band", y=1.06)
     fig.tight_layout()
     save_figure(fig, path)
@@ -284,8 +273,7 @@ def _paper_cells(experiment: str, methods: Sequence[str]) -> List[Tuple[str, str
     e = EXPERIMENTS[experiment]
     if not any(is_paper_treatment(experiment, a.name) for a in e.arms):
         return []
-    base = [n for n in _experiments(CHAIN_KIND, default=True) if len(EXPERIMENTS[n].arms) == 1]
-    return [(b, PAPER_ARM, m) for b in base for m in methods]
+    return [(b, PAPER_ARM, m) for b in _transfer_experiments() for m in methods]
 
 
 def _ablation_cells(e: str, runs: Dict[Tuple[str, str, str], set]) -> List[Tuple[str, str, str]]:
@@ -339,23 +327,12 @@ def plot_ablations(curves, path: Path, experiments: Sequence[str]) -> bool:
 
 
 # --------------------------------------------------------------------------- Fig. 7 (rliable style)
-def _strat_boot(mats: Dict[str, np.ndarray], fn, resamples: int = RESAMPLES, seed: int = 0) -> Dict[str, np.ndarray]:
-    """fn(resampled matrix) for each method: rows (seeds) resampled within each column (task), seeded."""
-    rng = np.random.default_rng(seed)
-    out = {}
-    for m, x in mats.items():
-        idx = rng.integers(0, x.shape[0], (resamples, x.shape[0], x.shape[1]))
-        out[m] = np.array([fn(np.take_along_axis(x, idx[b], axis=0)) for b in range(resamples)])
-    return out
-
-
 def _aggregate_row(axes, mats: Dict[str, np.ndarray], tasks: List[str], metric_name: str, rate: bool) -> None:
-    from . import stats
     names = list(mats)[::-1]  # the last registered method (the paper's) first: P(it > each other)
     q = (1 - LEVEL) / 2
     # (1) IQM and mean with stratified-bootstrap CIs
     for k, (label, fn) in enumerate((("IQM", lambda x: float(stats.iqm(x))), ("mean", lambda x: float(x.mean())))):
-        boots = _strat_boot(mats, fn, seed=k)
+        boots = stats.stratified_bootstrap(mats, fn, RESAMPLES, seed=k)
         for j, m in enumerate(names):
             pt = fn(mats[m])
             lo, hi = np.quantile(boots[m], [q, 1 - q])
@@ -370,7 +347,7 @@ def _aggregate_row(axes, mats: Dict[str, np.ndarray], tasks: List[str], metric_n
     # (2) performance profile with a bootstrap band
     hi_all = max(float(x.max()) for x in mats.values())
     taus = np.linspace(0, 1 if rate else hi_all * 1.02, 61)
-    boots = _strat_boot(mats, lambda x: stats.performance_profile(x, taus), seed=2)
+    boots = stats.stratified_bootstrap(mats, lambda x: stats.performance_profile(x, taus), RESAMPLES, seed=2)
     for m in names:
         ls, _ = style_of(m)
         axes[1].plot(taus, stats.performance_profile(mats[m], taus), color=color_of(m), linestyle=ls,
@@ -424,8 +401,8 @@ def plot_aggregate(scores_rows, path: Path, metric: str = "mean_eval_success_rat
     band, and the probability of improvement with a CI; top row: single-task runs across tasks (``metric``),
     bottom row: the headline adaptation claim's metric and cells (the first claim in ``claims.CLAIMS``)."""
     from .claims import CLAIMS
-    singles = set(_experiments(SINGLE_KIND, default=True))
-    rows = [r for r in scores_rows if r["role"] == SINGLE_KIND and r["experiment"] in singles and r["metric"] == metric]
+    fed = _fed(registry.FIG7)
+    rows = [r for r in scores_rows if r["role"] == SINGLE_KIND and fed(r) and r["metric"] == metric]
     tasks = sorted({r["task"] for r in rows}, key=_task_order)
     mats, avail = _matrix(rows, lambda r: r["method"], tasks)
     head = CLAIMS[0]

@@ -31,7 +31,7 @@ from typing import Dict, List, Optional, Sequence
 from .. import rundir
 from ..cmdline import OneLineParser
 from ..config import ConfigError
-from ..experiment.registry import default_experiments  # plain data: no torch, no simulator
+from ..experiment import registry  # plain data: no torch, no simulator
 from ..fileio import atomic_write_text, csv_text, fmt
 from ..staging import Staged, kill_point
 from . import budget as budget_mod
@@ -325,7 +325,7 @@ def _build(src: Path, out: Path, name: str, resamples: int, reference: Optional[
         if not (Path(reference) / CURVES).is_file():
             raise ConfigError(f"--reference {reference} holds no {CURVES}")
         ref_curves = read_rows(Path(reference) / CURVES)
-    tables = build_tables(scores, default_experiments())
+    tables = build_tables(scores)
     for table, rows in tables.items():
         atomic_write_text(out / table, csv_text(rows, TABLE_COLUMNS))
         written.append(table)
@@ -342,7 +342,8 @@ def _build(src: Path, out: Path, name: str, resamples: int, reference: Optional[
         atomic_write_text(out / "diagnostics.csv", csv_text(diag_rows, diagnostics_mod.COLUMNS))
         written.append("diagnostics.csv")
     figures = []
-    ablations = [e for e in dict.fromkeys(r["experiment"] for r in scores) if e not in default_experiments()]
+    fig6 = registry.experiments_feeding(registry.FIG6)
+    ablations = [e for e in dict.fromkeys(r["experiment"] for r in scores) if e in fig6]
     for fig, fn in (("fig4_single_task.png", lambda p: plots.plot_fig4(curves, p, ref_curves)),
                     ("fig5_multitask.png", lambda p: plots.plot_fig5(curves, p, ref_curves)),
                     ("fig6_ablations.png", lambda p: plots.plot_ablations(curves, p, ablations)),

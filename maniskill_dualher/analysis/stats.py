@@ -490,7 +490,56 @@ def compare(a: Sequence[float], b: Sequence[float], margin: float, resamples: in
                       ("paired " if paired else "") + how, paired, p, p_eq)
 
 
+# --------------------------------------------------------------------------- a mean over seeds (tables, plots, evaluate)
+def mean_ci(x: Sequence[float], level: float = 0.95) -> Tuple[float, float]:
+    """Student-t interval of a mean over seeds (NaN below 2 seeds; the point if there is no spread)."""
+    from scipy import stats as st
+    x = np.asarray(x, float)
+    if x.size < 2:
+        return math.nan, math.nan
+    se = x.std(ddof=1) / math.sqrt(x.size)
+    if se == 0:
+        return float(x.mean()), float(x.mean())
+    h = float(st.t.ppf(0.5 + level / 2, x.size - 1) * se)
+    return float(x.mean() - h), float(x.mean() + h)
+
+
+def rate_ci(x: Sequence[float], level: float = 0.95, resamples: int = 10_000) -> Tuple[float, float]:
+    """Percentile-bootstrap interval of a mean of rates over seeds (seeded: the report rebuilds byte-identically);
+    inside the values' range, so inside [0, 1]. NaN below 2 seeds."""
+    x = np.asarray(x, float)
+    if x.size < 2:
+        return math.nan, math.nan
+    means = x[np.random.default_rng(0).integers(0, x.size, (resamples, x.size))].mean(axis=1)
+    q = (1 - level) / 2
+    return float(np.quantile(means, q)), float(np.quantile(means, 1 - q))
+
+
+def boot_mean_ci(y: np.ndarray, level: float = 0.95, resamples: int = 2_000, seed: int = 0):
+    """Percentile-bootstrap interval of the mean over rows (seeds) of ``y`` (seeds, points), per column: inside the
+    values' range, so a success rate's band stays in [0, 1]. One seed: the point itself (the plots' bands)."""
+    y = np.asarray(y, float)
+    if y.shape[0] < 2:
+        return y[0], y[0]
+    idx = np.random.default_rng(seed).integers(0, y.shape[0], (resamples, y.shape[0]))
+    means = y[idx].mean(axis=1)
+    q = (1 - level) / 2
+    return np.quantile(means, q, axis=0), np.quantile(means, 1 - q, axis=0)
+
+
 # --------------------------------------------------------------------------- aggregates across tasks (rliable's)
+def stratified_bootstrap(mats: Dict[str, np.ndarray], fn, resamples: int = 2_000,
+                         seed: int = 0) -> Dict[str, np.ndarray]:
+    """fn(resampled matrix) for each key's (seeds, tasks) matrix: rows (seeds) resampled within each column
+    (task), seeded; one generator across the keys, in their order. Its quantiles are the plots' intervals."""
+    rng = np.random.default_rng(seed)
+    out = {}
+    for m, x in mats.items():
+        idx = rng.integers(0, x.shape[0], (resamples, x.shape[0], x.shape[1]))
+        out[m] = np.array([fn(np.take_along_axis(x, idx[b], axis=0)) for b in range(resamples)])
+    return out
+
+
 def iqm(x: np.ndarray, axis=None) -> np.ndarray:
     """Interquartile mean: the mean of the middle 50% (rliable's robust aggregate; scipy's trim_mean)."""
     from scipy.stats import trim_mean

@@ -13,9 +13,10 @@ from typing import Dict, List, Sequence, Tuple
 import numpy as np
 
 from ..config import TASKS, format_ratio
-from ..experiment.registry import EXPERIMENTS, KINDS
+from ..experiment import registry
 from ..methods import METHOD_SPECS
 from .paper import PAPER_CHAIN, PAPER_TABLE4, PAPER_TABLE5, PAPER_TARGET
+from .stats import mean_ci, rate_ci  # noqa: F401  (the intervals; evaluate.py reads mean_ci here too)
 
 TABLE_COLUMNS = ["experiment", "arm", "task", "chain", "method", "variant", "role", "metric", "n_seeds", "seeds",
                  "mean", "std", "ci95_low", "ci95_high", "paper"]
@@ -25,30 +26,6 @@ ADAPT_METRICS = ["successful_train_episodes", "final_eval_success_rate", "mean_e
 SINGLE_METRICS = ["final_eval_success_rate", "mean_eval_success_rate", "successful_train_episodes",
                   "steps_to_10_successes"]
 GROUP_KEYS = ("experiment", "arm", "task", "chain", "method", "variant", "role")
-
-
-def mean_ci(x: Sequence[float], level: float = 0.95) -> Tuple[float, float]:
-    """Student-t interval of a mean over seeds (NaN below 2 seeds; the point if there is no spread)."""
-    from scipy import stats as st
-    x = np.asarray(x, float)
-    if x.size < 2:
-        return math.nan, math.nan
-    se = x.std(ddof=1) / math.sqrt(x.size)
-    if se == 0:
-        return float(x.mean()), float(x.mean())
-    h = float(st.t.ppf(0.5 + level / 2, x.size - 1) * se)
-    return float(x.mean() - h), float(x.mean() + h)
-
-
-def rate_ci(x: Sequence[float], level: float = 0.95, resamples: int = 10_000) -> Tuple[float, float]:
-    """Percentile-bootstrap interval of a mean of rates over seeds (seeded: the report rebuilds byte-identically);
-    inside the values' range, so inside [0, 1]. NaN below 2 seeds."""
-    x = np.asarray(x, float)
-    if x.size < 2:
-        return math.nan, math.nan
-    means = x[np.random.default_rng(0).integers(0, x.size, (resamples, x.size))].mean(axis=1)
-    q = (1 - level) / 2
-    return float(np.quantile(means, q)), float(np.quantile(means, 1 - q))
 
 
 def _order(key: tuple) -> tuple:
@@ -66,21 +43,22 @@ def groups(scores: Sequence[Dict[str, str]], metric: str, where) -> Dict[tuple, 
     return dict(sorted(out.items(), key=lambda kv: _order(kv[0])))
 
 
-_SINGLE, _CHAIN, _SCRATCH = KINDS
-
-
-def _paper_experiments(kind: str, many_arms: bool):
-    """The registry's default experiments of one kind, with one arm (transfer) or several (the ratio study)."""
-    return tuple(n for n, e in EXPERIMENTS.items() if e.default and e.kind == kind and (len(e.arms) > 1) == many_arms)
+def feeds(table: str):
+    """A row's test: its cell (experiment, arm) feeds ``table`` (``registry.feeds_of``: declared, not inferred)."""
+    cells = set(registry.arms_feeding(table))
+    return lambda r: (r["experiment"], r["arm"]) in cells
 
 
 def paper_number(key: tuple, metric: str) -> str:
+    """The paper's number beside a row of its chain and target: Table 4 for an experiment feeding
+    table4_sampling_ratio.csv, Table 5 for a chain experiment feeding table5_multitask.csv."""
     exp, arm, task, chain, method, variant, role = key
     if task != PAPER_TARGET or chain != PAPER_CHAIN or metric != "successful_train_episodes" or role != "adapt":
         return ""
-    if exp in _paper_experiments(_CHAIN, many_arms=True):
+    fed = registry.feeds_of(exp, arm)
+    if registry.TABLE4_CSV in fed:
         return next((v for r, v in PAPER_TABLE4.items() if format_ratio(r) == variant), "")
-    if exp in _paper_experiments(_CHAIN, many_arms=False):
+    if registry.TABLE5_CSV in fed and registry.EXPERIMENTS[exp].kind == "chain":
         return PAPER_TABLE5.get(method, "")
     return ""
 
@@ -99,14 +77,18 @@ def table(scores, metrics: Sequence[str], where) -> List[dict]:
     return rows
 
 
-def build_tables(scores: Sequence[Dict[str, str]], default_experiments: Sequence[str]) -> Dict[str, List[dict]]:
-    adapt = lambda exps: (lambda r: r["role"] == "adapt" and r["experiment"] in exps)  # noqa: E731
-    transfer = _paper_experiments(_CHAIN, many_arms=False) + _paper_experiments(_SCRATCH, many_arms=False)
-    return {
-        "table5_multitask.csv": table(scores, ADAPT_METRICS, adapt(transfer)),
-        "table4_sampling_ratio.csv": table(scores, ["successful_train_episodes"],
-                                           adapt(_paper_experiments(_CHAIN, many_arms=True))),
-        "single_task.csv": table(scores, SINGLE_METRICS, lambda r: r["role"] == "single"),
-        "ablations.csv": table(scores, ADAPT_METRICS,
-                               lambda r: r["role"] == "adapt" and r["experiment"] not in default_experiments),
-    }
+# each table: its rows' role and metrics; which experiments and arms it holds is theirs to declare (feeds)
+TABLES = {
+    registry.TABLE5_CSV: ("adapt", ADAPT_METRICS),
+    registry.TABLE4_CSV: ("adapt", ["successful_train_episodes"]),
+    registry.SINGLE_TASK_CSV: ("single", SINGLE_METRICS),
+    registry.ABLATIONS_CSV: ("adapt", ADAPT_METRICS),
+}
+
+
+def build_tables(scores: Sequence[Dict[str, str]]) -> Dict[str, List[dict]]:
+    out = {}
+    for name, (role, metrics) in TABLES.items():
+        fed = feeds(name)
+        out[name] = table(scores, metrics, lambda r, role=role, fed=fed: r["role"] == role and fed(r))
+    return out

@@ -23,7 +23,7 @@ from ..config import RunConfig
 from ..methods import method_spec
 from ..rundir import RUNS_DIR
 from . import overrides, protocol
-from .presets import HER_K_MULTITASK, Preset, seed_key
+from .presets import HER_K_MULTITASK, Preset, cell_key
 from .registry import Arm, Experiment, experiment
 
 
@@ -77,30 +77,45 @@ def _arm_cells(d: dict, exp: Experiment, arm: Arm) -> List[Tuple[str, str]]:
 
 def seeds_for(d: dict, exp: Experiment, arm: Arm, method: str, task: str) -> List[int]:
     """The seeds one arm runs for one method and task (a chain's task: its target). The one place seeds are
-    decided: the definition's seed table (``arm_seeds``: the reference preset without --seeds/--chain-seeds),
-    else its seeds capped by ``Experiment.max_seeds`` / ``Arm.max_seeds``."""
+    decided: the definition's seed table (``arm_seeds``: the reference preset without --seeds/--chain-seeds,
+    the seeds each cell has in results/reference; none for a cell not there), else its seeds capped by
+    ``Experiment.max_seeds`` / ``Arm.max_seeds``."""
     table = d.get("arm_seeds")
     if table is not None:
-        return list(range(int(table[seed_key(table, exp.name, arm.name, method, task)])))
+        return list(table.get(cell_key(exp.name, arm.name, method, task), []))
     seeds = _asked_seeds(d, exp)
     caps = [c for c in (exp.max_seeds, arm.max_seeds) if c]
     return seeds[: min(caps)] if caps else seeds
 
 
+def _seed_groups(cells: Dict[Tuple[str, str], Tuple[int, ...]]) -> Dict[str, Tuple[int, ...]]:
+    """An arm's seeds per (method, task) as a reader says them: one group ("") when they agree; else a method's
+    where its tasks agree, then a task's where its other methods agree, else "method task"."""
+    if len(set(cells.values())) <= 1:
+        return {"": next(iter(cells.values()), ())}
+    uniform = {m for m in dict.fromkeys(m for m, _ in cells)
+               if len({s for (mm, _), s in cells.items() if mm == m}) == 1}
+    rest = {k: s for k, s in cells.items() if k[0] not in uniform}
+
+    def label(m: str, t: str) -> str:
+        if m in uniform:
+            return m
+        return t if len({s for (_, tt), s in rest.items() if tt == t}) == 1 else f"{m} {t}"
+
+    out: Dict[str, Tuple[int, ...]] = {}
+    for (m, t), s in cells.items():
+        out.setdefault(label(m, t), s)
+    return out
+
+
 def seed_plan(d: dict) -> List[Tuple[str, str, Tuple[int, ...], int]]:
-    """Per selected arm, or per seed-table key where an arm's methods or tasks differ: (experiment/arm, the
-    key's method or task ("" for the whole arm), the seeds planned, seeds the definition lists for its kind)."""
+    """Per selected arm, or per method or task where an arm's seeds differ between them: (experiment/arm, the
+    method or task ("" for the whole arm), the seeds planned, seeds the definition lists for its kind)."""
     out = []
-    table = d.get("arm_seeds")
     for exp, arm in selected_arms(d):
         asked = len(_asked_seeds(d, exp))
-        groups: Dict[str, Tuple[int, ...]] = {}
-        for m, t in _arm_cells(d, exp, arm):
-            key = seed_key(table, exp.name, arm.name, m, t) if table is not None else ""
-            groups.setdefault(":".join(key.split(":")[2:]), tuple(seeds_for(d, exp, arm, m, t)))
-        if len(set(groups.values())) == 1:
-            groups = {"": next(iter(groups.values()))}
-        out += [(f"{exp.name}/{arm.name}", g, s, asked) for g, s in (groups or {"": ()}).items()]
+        cells = {(m, t): tuple(seeds_for(d, exp, arm, m, t)) for m, t in _arm_cells(d, exp, arm)}
+        out += [(f"{exp.name}/{arm.name}", g, s, asked) for g, s in _seed_groups(cells).items()]
     return out
 
 

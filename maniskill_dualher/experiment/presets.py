@@ -3,14 +3,20 @@
 A preset never has its own knobs: every setting is a ``RunConfig`` key (``experiment/overrides.py``), so
 ``sweep --set KEY=VALUE`` reaches anything a preset sets and anything it does not. Budgets are keyed by
 task id; a task in ``config.TASKS`` that a preset does not name gets the preset's ``default_steps``.
+The reference preset's seeds per arm are the reference's own: the cells of ``results/reference/scores.csv``
+(``cell_seeds``), so an arm has the seeds it was run at there, and none until it is.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import Dict, Optional, Tuple
+import csv
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Dict, Iterable, List, Optional, Tuple
 
 from ..config import TASKS, RunConfig
 from . import overrides
+
+REPO = Path(__file__).resolve().parents[2]   # the checkout: results/ lives beside the package
 
 PAPER_EPOCH_STEPS = 200 * 150   # paper: an epoch is 200 episodes of 150 steps (Table 3)
 HER_K_SINGLE = 4                # paper 4.2.1
@@ -27,8 +33,9 @@ class Preset:
     chain_seeds: Tuple[int, ...]              # chain and scratch experiments (transfer claims)
     settings: Tuple[str, ...] = ()            # dotted RunConfig overrides, e.g. "sac.lr=1e-3"
     default_steps: Optional[int] = None       # budget of a task the dicts above do not name
-    # seeds per arm (``seed_count``'s keys), used when no --seeds/--chain-seeds is given; wins over max_seeds
-    arm_seeds: Optional[Dict[str, int]] = None
+    # a results folder (relative to the checkout) whose cells decide each arm's seeds (``cell_seeds``) when no
+    # --seeds/--chain-seeds is given; wins over max_seeds
+    seeds_from: Optional[str] = None
 
     def steps(self, role: str, task: str) -> int:
         table = {"single": self.single_steps, "source": self.stage_steps, "adapt": self.adaptation_steps}[role]
@@ -52,14 +59,28 @@ class Preset:
         return cfg.validate()
 
 
-def seed_key(table: Dict[str, int], experiment: str, arm: str, method: str, task: str) -> str:
-    """The key of a seed table that decides one cell: the most specific one (``experiment:arm:method``,
-    then ``experiment:arm:task``, then ``experiment:arm``)."""
-    for key in (f"{experiment}:{arm}:{method}", f"{experiment}:{arm}:{task}", f"{experiment}:{arm}"):
-        if key in table:
-            return key
-    from ..config import ConfigError
-    raise ConfigError(f"the seed table has no entry for {experiment}:{arm} (add one to presets.REFERENCE_SEEDS)")
+def cell_key(experiment: str, arm: str, method: str, task: str) -> str:
+    """The key of one cell in a seed table (``cell_seeds``; a chain's cell is its target task)."""
+    return f"{experiment}:{arm}:{method}:{task}"
+
+
+def cell_seeds(folder: str, arms: Optional[Iterable[str]] = None) -> Dict[str, List[int]]:
+    """The seeds a results folder holds per cell: ``cell_key`` -> sorted seeds, from its ``scores.csv`` (the
+    single-task and adaptation rows; no torch). ``arms`` ("experiment:arm"): only those arms' cells. A folder
+    or file that is not there holds none."""
+    path = (REPO / folder) / "scores.csv"
+    want = None if arms is None else set(arms)
+    out: Dict[str, set] = {}
+    if not path.is_file():
+        return {}
+    with open(path, newline="") as f:
+        rows = csv.reader(f)
+        cols = {c: i for i, c in enumerate(next(rows, []))}
+        e, a, m, t, s, role = (cols[c] for c in ("experiment", "arm", "method", "task", "seed", "role"))
+        for r in rows:
+            if r[role] in ("single", "adapt") and (want is None or f"{r[e]}:{r[a]}" in want):
+                out.setdefault(cell_key(r[e], r[a], r[m], r[t]), set()).add(int(r[s]))
+    return {k: sorted(v) for k, v in sorted(out.items())}
 
 
 def _every_task(n: int, **per_task: int) -> Dict[str, int]:
@@ -78,53 +99,6 @@ QUICK_SETTINGS = (
 )
 QUICK_SINGLE = {"ReachTarget-v1": 10_000, "CloseBox-v1": 10_000, "CloseMicrowave-v1": 16_000}
 
-# The seeds behind results/reference, per arm: key -> n (seeds 0..n-1; 0 = not in the reference). Keys are
-# experiment:arm, or experiment:arm:method / experiment:arm:task where one arm has different counts per method
-# or task (seed_count: method, then task, then arm). Every arm of the registry has an entry, and the plan of
-# `sweep --preset reference --experiments all` is exactly the cells of results/reference/scores.csv
-# (tests/test_sweep.py): add seeds to the reference, then edit this table in the same commit.
-REFERENCE_SEEDS: Dict[str, int] = {
-    "single:paper:sac_her_per": 0,
-    "single:paper:ReachTarget-v1": 10,
-    "single:paper:CloseBox-v1": 50,
-    "single:paper:CloseMicrowave-v1": 20,
-    "transfer:paper": 32,
-    "transfer:paper:dual_buffer": 48,
-    "ratios:0.5/0.5": 32,
-    "ratios:0.6/0.4": 32,
-    "ratios:0.7/0.3": 32,
-    "scratch:paper": 32,
-    "scratch:paper:dual_buffer": 48,
-    "e_share:paper": 48,
-    "e_share:e_off": 48,
-    "e_share:split": 8,
-    "e_share:r_matched": 48,
-    "e_share:r_starved": 48,
-    "e_share:e_critic": 48,
-    "e_share:e_off_matched": 0,
-    "mechanism:e_off": 48,
-    "mechanism:r_matched": 48,
-    "mechanism:r_starved": 48,
-    "mechanism:e_critic": 48,
-    "mechanism:e_off_matched": 0,
-    "matched_chain:r_matched_all": 32,
-    "budget:x2": 6,
-    "budget:x4": 0,
-    "budget:x8": 0,
-    "shared_prior:shared": 32,
-    "e_content:e_target_only": 8,
-    "e_content:e_episodes": 8,
-    "warm_start:paper": 32,
-    "warm_start:warm": 32,
-    "warm_start:warm_low_lr": 16,
-    "her_episode:paper": 0,
-    "her_episode:her_episode": 32,
-    "paper_regime:episode": 0,
-    "paper_regime:step": 0,
-    "regime:long": 6,
-    "regime:long_episode": 12,
-}
-
 PRESETS: Dict[str, Preset] = {
     "smoke": Preset(
         "CI: the whole pipeline (every experiment, table and plot) in about a minute; learns nothing",
@@ -138,13 +112,14 @@ PRESETS: Dict[str, Preset] = {
         single_steps=dict(QUICK_SINGLE), stage_steps=_every_task(6_000), adaptation_steps=_every_task(12_000),
         seeds=(0, 1, 2, 3), chain_seeds=tuple(range(6)), default_steps=10_000, settings=QUICK_SETTINGS),
     # The reference (results/reference): quick's budgets and settings, an evaluation at env step 0 of every
-    # run (the prior's zero-shot score); each arm's seeds from REFERENCE_SEEDS unless --seeds/--chain-seeds
-    # (then 10 single-task and 16 chain seeds, capped by max_seeds).
+    # run (the prior's zero-shot score); each arm's seeds those its cells have in results/reference/scores.csv
+    # (none for an arm not run there) unless --seeds/--chain-seeds (then 10 single-task and 16 chain seeds,
+    # capped by max_seeds). Adding seeds to the reference (report --merge) adds them here; nothing to edit.
     "reference": Preset(
-        "quick's settings at the seeds of results/reference (REFERENCE_SEEDS per arm), evaluation at step 0",
+        "quick's settings at the seeds of results/reference (each arm's, from its scores.csv), evaluation at step 0",
         single_steps=dict(QUICK_SINGLE), stage_steps=_every_task(6_000), adaptation_steps=_every_task(12_000),
         seeds=tuple(range(10)), chain_seeds=tuple(range(16)), default_steps=10_000,
-        settings=QUICK_SETTINGS + ("eval_at_start=true",), arm_seeds=REFERENCE_SEEDS),
+        settings=QUICK_SETTINGS + ("eval_at_start=true",), seeds_from="results/reference"),
     "full": Preset(
         "quick's budgets and settings with 30 seeds everywhere (~7 h on 2 cores, or a Ray cluster)",
         single_steps=dict(QUICK_SINGLE), stage_steps=_every_task(6_000), adaptation_steps=_every_task(12_000),

@@ -22,13 +22,14 @@ from pathlib import Path
 from typing import List, Sequence, Union
 
 from maniskill_dualher import rundir
-from maniskill_dualher.config import TASKS, ConfigError, RunConfig
+from maniskill_dualher.config import ConfigError, RunConfig
 from maniskill_dualher.experiment.presets import HER_K_MULTITASK, HER_K_SINGLE  # noqa: F401 (re-exported)
+from maniskill_dualher.experiment.registry import PAPER_CHAIN
 from maniskill_dualher.methods import method_spec
 
 PathLike = Union[str, Path]
 
-TRANSFER_ORDER = TASKS                  # paper: ReachTarget -> CloseBox -> CloseMicrowave
+TRANSFER_ORDER = PAPER_CHAIN            # paper: ReachTarget -> CloseBox -> CloseMicrowave (registry data)
 
 
 # --------------------------------------------------------------------------- small shared helpers

@@ -9,7 +9,15 @@ unchanged arm *is* the transfer experiment's run. Every run folder records its c
 task, chain, method, ...) in ``cell.json``; the analysis groups by them and infers nothing.
 
 Add an experiment: one ``Experiment(...)`` entry in ``EXPERIMENTS`` below; claims about it go in
-``analysis/claims.py``.
+``analysis/claims.py``. What it feeds (``feeds``: tables and figures by file name, ``FEEDS``) is declared
+here and nowhere inferred; an ablation feeds ``ablations.csv`` and ``fig6_ablations.png`` by default. Its
+seeds in the reference preset are the ones ``results/reference`` holds (none until it is run there), and
+the experiment table of ``docs/experiments.md`` is printed from here (``python -m
+maniskill_dualher.experiment.registry --markdown``).
+
+The paper's transfer chain (``PAPER_CHAIN``) is experiment data too: the order of a chain's tasks unless a
+sweep says otherwise, and its last task, the paper's target. ``config.TASKS`` is the catalog of tasks; a
+task added there joins no chain.
 """
 from __future__ import annotations
 
@@ -21,6 +29,38 @@ from ..methods import METHOD_SPECS
 
 KINDS = ("single", "chain", "scratch")
 PAPER_ARM = "paper"
+# The paper's transfer chain (section 3.1): ReachTarget -> CloseBox -> CloseMicrowave. The protocol's
+# TRANSFER_ORDER, the sweep's --task-order default, the paper's target and its chain in the tables read it.
+PAPER_CHAIN: Tuple[str, ...] = ("ReachTarget-v1", "CloseBox-v1", "CloseMicrowave-v1")
+PAPER_TARGET = PAPER_CHAIN[-1]
+
+# What an experiment or arm can feed: the report's tables and figures (file names), and the panel of one.
+SINGLE_TASK_CSV, TABLE4_CSV, TABLE5_CSV, ABLATIONS_CSV, BUDGET_CSV = (
+    "single_task.csv", "table4_sampling_ratio.csv", "table5_multitask.csv", "ablations.csv", "budget.csv")
+FIG4, FIG5, FIG5_RATIOS, FIG6, FIG7 = (
+    "fig4_single_task.png", "fig5_multitask.png", "fig5_multitask.png:ratio", "fig6_ablations.png",
+    "fig7_aggregate.png")
+FEEDS = {
+    SINGLE_TASK_CSV: "single-task runs: one row per task, method and metric",
+    TABLE4_CSV: "the paper's Table 4: successful adaptation episodes per R/E sampling ratio, the paper's beside",
+    TABLE5_CSV: "the paper's Table 5: adaptation metrics per method, transfer and from scratch, the paper's beside",
+    ABLATIONS_CSV: "adaptation metrics of the ablations",
+    BUDGET_CSV: "the budget curve (and fig8_budget.png): an arm's adaptation at Arm.adapt_steps_factor times "
+                "the budget",
+    FIG4: "the paper's Fig. 4: single-task curves per task",
+    FIG5: "the paper's Fig. 5: adaptation curves on the target, transfer and from scratch",
+    FIG5_RATIOS: "Fig. 5's sampling-ratio panel",
+    FIG6: "one row of curves per ablation experiment",
+    FIG7: "rliable-style aggregates of single-task runs",
+}
+ABLATION_FEEDS = (ABLATIONS_CSV, FIG6)
+SINGLE_FEEDS = (SINGLE_TASK_CSV, FIG4, FIG7)   # these hold single-task rows; every other feed adaptation rows
+
+
+def _check_feeds(what: str, feeds: Tuple[str, ...]) -> None:
+    unknown = [f for f in feeds if f not in FEEDS]
+    if unknown or isinstance(feeds, str):
+        raise ConfigError(f"{what} feeds {unknown[0] if unknown else feeds!r}: not a tuple of {', '.join(FEEDS)}")
 
 
 @dataclass(frozen=True)
@@ -32,14 +72,10 @@ class Arm:
     max_seeds: Optional[int] = None            # only the first n of the experiment's seeds (second-tier arms)
     adapt_steps_factor: float = 1.0            # the adaptation stage's budget times this (a longer regime)
     prior_method: Optional[str] = None         # source stages trained by this method (one prior for all)
-    # display (registry data the analysis reads instead of naming arms): legend/table label (None: the name),
-    # matplotlib colour (None: the method's), and the tables/figures it feeds beyond its experiment's
-    label: Optional[str] = None
-    color: Optional[str] = None
-    feeds: Tuple[str, ...] = ()
+    feeds: Tuple[str, ...] = ()                # tables/figures (FEEDS) it feeds beyond its experiment's
 
-    def display(self) -> str:
-        return self.label if self.label is not None else self.name
+    def __post_init__(self):
+        _check_feeds(f"arm {self.name!r}", self.feeds)
 
 
 @dataclass(frozen=True)
@@ -53,10 +89,24 @@ class Experiment:
     default: bool = False                      # run when --experiments is not given
     max_seeds: Optional[int] = None            # use only the first n of the preset's seeds (costly arms)
     paper: str = ""                            # the paper's figure/table it reproduces, if any
-    # display: its label in tables and legends (None: the title) and the tables/figures it feeds (file
-    # names, e.g. "ablations.csv", "fig6_ablations.png"; () : the analysis's default for its kind)
-    label: Optional[str] = None
-    feeds: Tuple[str, ...] = ()
+    # the tables and figures its rows feed (FEEDS: file names, "fig5_multitask.png:ratio" a panel); the
+    # analysis selects on these, and on nothing else about the experiment. Default: an ablation's; a
+    # single-task experiment feeds only SINGLE_FEEDS, a chain or scratch one only the others (checked)
+    feeds: Tuple[str, ...] = ABLATION_FEEDS
+    doc: str = ""                              # the question it answers, beyond its title (docs/experiments.md)
+
+    def __post_init__(self):
+        if self.kind not in KINDS:
+            raise ConfigError(f"experiment {self.name!r}: kind {self.kind!r} is not one of {', '.join(KINDS)}")
+        _check_feeds(f"experiment {self.name!r}", self.feeds)
+        for what, feeds in ((f"experiment {self.name!r}", self.feeds),
+                            *((f"arm {self.name}:{a.name}", a.feeds) for a in self.arms)):
+            fits = [f for f in FEEDS if (f in SINGLE_FEEDS) == (self.kind == "single")]
+            wrong = [f for f in feeds if f not in fits]
+            if wrong:
+                rows = "adaptation" if self.kind == "single" else "single-task"
+                raise ConfigError(f"{what} ({self.kind}) feeds {wrong[0]}, which holds {rows} rows: give its "
+                                  f"feeds=(...) from {', '.join(fits)}")
 
     def method_names(self) -> Tuple[str, ...]:
         if self.methods == "all":
@@ -96,17 +146,22 @@ PAPER_REGIME_SETTINGS = (
 
 EXPERIMENTS: Dict[str, Experiment] = {e.name: e for e in (
     # ------------------------------------------------------------------ the paper's experiments
-    Experiment("single", "Single-task learning", "single", default=True, paper="Fig. 4"),
+    Experiment("single", "Single-task learning", "single", default=True, paper="Fig. 4",
+               feeds=(SINGLE_TASK_CSV, FIG4, FIG7)),
     Experiment("transfer", "Transfer chain, adaptation on the last task", "chain", methods="transfer",
-               default=True, paper="Fig. 5, Table 5"),
+               arms=(Arm(PAPER_ARM, feeds=(BUDGET_CSV,), doc="the paper's chain, replay carried, HER k = 8"),),
+               default=True, paper="Fig. 5, Table 5", feeds=(TABLE5_CSV, FIG5),
+               doc="ReachTarget -> CloseBox -> CloseMicrowave, HER k = 8, replay carried"),
     Experiment("ratios", "Dual buffer R/E sampling ratio in the adaptation stage", "chain",
                arms=tuple(_ratio_arm(r) for r in ("0.5/0.5", "0.6/0.4", "0.7/0.3")), methods="sampling_ratio",
-               default=True, paper="Table 4"),
+               default=True, paper="Table 4", feeds=(TABLE4_CSV, FIG5_RATIOS)),
     Experiment("scratch", "The last task from scratch, adaptation budget and settings (control)", "scratch",
-               methods="transfer", default=True, paper="not in the paper (tests section 3.1's premise)"),
+               methods="transfer", default=True, paper="not in the paper (tests section 3.1's premise)",
+               feeds=(TABLE5_CSV, FIG5), doc="the control the paper never ran: does pretraining help?"),
     # ------------------------------------------------------------------ why the dual buffer loses (ablations)
     # Each changes the adaptation stage only, so every arm adapts the same prior (the source stages are shared).
-    Experiment("e_share", "How much of the dual buffer's updates E takes", "chain", methods=("dual_buffer",), arms=(
+    Experiment("e_share", "How much of the dual buffer's updates E takes", "chain", methods=("dual_buffer",),
+               doc="and what E's own batches do", arms=(
         Arm(PAPER_ARM, doc="Algorithm 1: whole batch from E with probability 0.4"),
         Arm("e_off", ("adapt.replay.ratio=1/0",), doc="same prior, E never sampled in adaptation"),
         Arm("split", ("adapt.replay.dual_mode=split",), doc="E's 40% inside every batch", max_seeds=8),
@@ -121,7 +176,10 @@ EXPERIMENTS: Dict[str, Experiment] = {e.name: e for e in (
     )),
     # The same contrasts with no prior at all: the last task from scratch (adaptation budget and settings).
     Experiment("mechanism", "Where E's cost comes from, without transfer: R's lost updates vs E's own batches",
-               "scratch", methods=("dual_buffer",), arms=(
+               "scratch", methods=("dual_buffer",),
+               doc="total updates vs R's share (e_off_matched); E off is SAC+HER+PER bit for bit, so the claims read "
+                   "SAC+HER+PER's own from-scratch runs for it and e_off is the negative control (scratch_e_off: "
+                   "exactly 0)", arms=(
         Arm("e_off", ("adapt.replay.ratio=1/0",),
             doc="E never sampled: SAC+HER+PER bit for bit (the negative control; claims use SAC+HER+PER's runs)"),
         Arm("r_matched", ("adapt.sac.updates_per_step=1/0.6",),
@@ -134,18 +192,20 @@ EXPERIMENTS: Dict[str, Experiment] = {e.name: e for e in (
             doc="E off at 1/0.6 updates per env step: r_matched's update count, every update from R"),
     )),
     Experiment("matched_chain", "R's updates matched in every stage: does the dual buffer's prior catch up?",
-               "chain", methods=("dual_buffer",), arms=(
+               "chain", methods=("dual_buffer",),
+               doc="does it close the gap (claims matched_prior, matched_a; its own gain: matched_gain)?", arms=(
         Arm("r_matched_all", ("sac.updates_per_step=1/0.6",),
             doc="1/0.6 updates per env step in every stage (source stages too)"),
     )),
     Experiment("budget", "The adaptation budget: 2x, 4x and 8x the paper arm's 12k env steps", "chain",
-               methods="transfer", arms=(
-        Arm("x2", doc="2x the adaptation budget", adapt_steps_factor=2.0),
-        Arm("x4", doc="4x the adaptation budget (the regime experiment's long arm)", adapt_steps_factor=4.0),
-        Arm("x8", doc="8x the adaptation budget", adapt_steps_factor=8.0, max_seeds=8),
+               methods="transfer", doc="does the order of the methods change with the budget?", arms=(
+        Arm("x2", doc="2x the adaptation budget", adapt_steps_factor=2.0, feeds=(BUDGET_CSV,)),
+        Arm("x4", doc="4x the adaptation budget (the regime experiment's long arm)", adapt_steps_factor=4.0,
+            feeds=(BUDGET_CSV,)),
+        Arm("x8", doc="8x the adaptation budget", adapt_steps_factor=8.0, max_seeds=8, feeds=(BUDGET_CSV,)),
     )),
     Experiment("shared_prior", "One prior for both methods: SAC+HER+PER's source stages", "chain",
-               methods="transfer", arms=(
+               methods="transfer", doc="is the gap the prior or the adaptation?", arms=(
         Arm("shared", prior_method="sac_her_per",
             doc="both adapt from SAC+HER+PER's prior (networks and R); the dual buffer's E starts from R's real "
                 "reward-1 rows"),
@@ -170,7 +230,10 @@ EXPERIMENTS: Dict[str, Experiment] = {e.name: e for e in (
         Arm("her_episode", ("replay.her_strategy=episode",), doc="HER 'episode' in every stage (changes the prior)"),
     ), max_seeds=8),
     Experiment("paper_regime", "The paper's own regime: Table 3's settings, 3.6M adaptation env steps, one shared "
-               "SAC+HER+PER prior", "chain", methods="transfer", arms=(
+               "SAC+HER+PER prior", "chain", methods="transfer",
+               doc="Table 3's settings in the adaptation stage (lr 1e-4, gamma 0.99, alpha 0.005 fixed, batch 256, "
+                   "replay 10^7, PER exponent 0.5, HER k = 8, 150-step episodes ending on success, 100k random "
+                   "steps) on the reference preset's source stages; results/paper_regime/", arms=(
         Arm("episode", PAPER_REGIME_SETTINGS + ("adapt.sac.update_schedule=episode", "adapt.sac.updates_per_episode=1"),
             prior_method="sac_her_per",
             doc="Algorithm 1: one update per finished episode (the pilot, results/paper_regime)"),
@@ -179,8 +242,9 @@ EXPERIMENTS: Dict[str, Experiment] = {e.name: e for e in (
             doc="one update per env step (the confirmatory study's second schedule; ~3.6M updates a run)"),
     )),
     Experiment("regime", "A longer adaptation (4x), with updates per env step or per episode", "chain",
-               methods="transfer", arms=(
-        Arm("long", doc="4x the adaptation budget", adapt_steps_factor=4.0),
+               methods="transfer", doc="do scarce updates decide the sign?", arms=(
+        Arm("long", doc="4x the adaptation budget (the same runs as budget's x4)", adapt_steps_factor=4.0,
+            feeds=(BUDGET_CSV,)),
         Arm("long_episode", ("adapt.sac.update_schedule=episode",), adapt_steps_factor=4.0,
             doc="4x the adaptation budget and Algorithm 1's schedule: one update per finished episode"),
     ), max_seeds=6),
@@ -191,6 +255,24 @@ def experiment(name: str) -> Experiment:
     if name not in EXPERIMENTS:
         raise ConfigError(f"unknown experiment {name!r} (choose from {', '.join(EXPERIMENTS)})")
     return EXPERIMENTS[name]
+
+
+def feeds_of(experiment: str, arm: str) -> Tuple[str, ...]:
+    """What a cell of (experiment, arm) feeds: its experiment's feeds and its arm's (none for an experiment or
+    arm the registry does not have)."""
+    e = EXPERIMENTS.get(experiment)
+    a = next((x for x in e.arms if x.name == arm), None) if e is not None else None
+    return () if a is None else tuple(dict.fromkeys(e.feeds + a.feeds))
+
+
+def experiments_feeding(feed: str) -> Tuple[str, ...]:
+    """The experiments (in registry order) whose own feeds name ``feed``."""
+    return tuple(n for n, e in EXPERIMENTS.items() if feed in e.feeds)
+
+
+def arms_feeding(feed: str) -> Tuple[Tuple[str, str], ...]:
+    """(experiment, arm) of every cell that feeds ``feed``, by its experiment or by itself, in registry order."""
+    return tuple((e.name, a.name) for e in EXPERIMENTS.values() for a in e.arms if feed in feeds_of(e.name, a.name))
 
 
 def default_experiments() -> Tuple[str, ...]:
@@ -217,3 +299,63 @@ def is_paper_treatment(experiment: str, arm: str) -> bool:
         if overrides.apply(base, overrides.parse_all(a.settings), stage, 3).to_dict() != base.to_dict():
             return False
     return True
+
+
+# --------------------------------------------------------------------------- the table of docs/experiments.md
+def _md(text: str) -> str:
+    return text.replace("|", "\\|")
+
+
+def markdown_table() -> str:
+    """The experiment table of ``docs/experiments.md``, from the registry (tests/test_registry.py holds the
+    file to it): one row per experiment, its arms with their docs and seed caps, what it feeds."""
+    lines = ["| experiment | kind | arms | question | feeds |", "|---|---|---|---|---|"]
+    for e in EXPERIMENTS.values():
+        kind = e.kind + (", default" if e.default else "") + (f", {e.max_seeds} seeds" if e.max_seeds else "")
+        methods = e.methods if isinstance(e.methods, str) else "+".join(e.methods)
+        arms = "; ".join(
+            f"`{a.name}`" + (f" ({a.max_seeds} seeds)" if a.max_seeds else "")
+            + (f": {a.doc}" if a.doc else (": as the preset" if not a.settings else f": {', '.join(a.settings)}"))
+            + (f" [+ {', '.join(f'`{f}`' for f in a.feeds)}]" if a.feeds else "")
+            for a in e.arms)
+        question = e.title + (f" [{e.paper}]" if e.paper else "") + (f": {e.doc}" if e.doc else "")
+        feeds = ", ".join(f"`{f}`" for f in e.feeds) or "nothing"
+        lines.append(f"| `{e.name}` | {kind}; methods: {methods} | {_md(arms)} | {_md(question)} | {feeds} |")
+    return "\n".join(lines) + "\n"
+
+
+DOCS_BEGIN = "<!-- experiments: generated from experiment/registry.py"
+DOCS_END = "<!-- end of experiments -->"
+
+
+def docs_with_table(text: str) -> str:
+    """``text`` (docs/experiments.md) with the block between its markers replaced by ``markdown_table()``."""
+    i, j = text.index(DOCS_BEGIN), text.index(DOCS_END)
+    head = text[i:text.index("\n", i) + 1]
+    return text[:i] + head + markdown_table() + text[j:]
+
+
+def main(argv=None) -> int:
+    import argparse
+    from pathlib import Path
+    p = argparse.ArgumentParser(prog="python -m maniskill_dualher.experiment.registry",
+                                description="Print the experiment registry.")
+    p.add_argument("--markdown", action="store_true",
+                   help="print the experiment table of docs/experiments.md (between its generated-table markers)")
+    p.add_argument("--update-docs", metavar="FILE",
+                   help="write the table into FILE (docs/experiments.md) between its markers")
+    a = p.parse_args(argv)
+    if a.update_docs:
+        path = Path(a.update_docs)
+        path.write_text(docs_with_table(path.read_text()))
+    elif a.markdown:
+        print(markdown_table(), end="")
+    else:
+        for e in EXPERIMENTS.values():
+            print(f"{e.name}: {e.kind}, arms {', '.join(x.name for x in e.arms)}; feeds {', '.join(e.feeds)}")
+    return 0
+
+
+if __name__ == "__main__":
+    import sys
+    sys.exit(main())

@@ -26,8 +26,8 @@ from ..methods import METHOD_SPECS
 from ..rundir import RUNS_DIR, SWEEP
 from . import overrides
 from .grid import Node, build_grid, capped_arms, seed_plan, seed_span, selected_arms
-from .presets import PRESETS, preset
-from .registry import EXPERIMENTS, ablation_experiments, default_experiments
+from .presets import PRESETS, cell_seeds, preset
+from .registry import EXPERIMENTS, PAPER_CHAIN, ablation_experiments, default_experiments
 
 DEFINITION_VERSION = 2
 # runs per worker: packing is bit-identical to running alone (tests/test_pack.py) and 1.1-1.25x faster on
@@ -89,30 +89,35 @@ def _experiments(text: Optional[str]) -> List[str]:
 def definition_from_args(a: argparse.Namespace) -> dict:
     """The sweep's definition (what sweep.json holds): everything that decides which runs exist."""
     p = preset(a.preset)
-    budgets = {"single": dict(p.single_steps), "source": dict(p.stage_steps), "adapt": dict(p.adaptation_steps),
-               "default": p.default_steps}
+    order = _pick(a.task_order, TASKS, "task")
+    if len(set(order)) != len(order):
+        raise ConfigError(f"--task-order repeats a task: {a.task_order!r}")
+    tasks = _pick(a.tasks, TASKS, "task") if a.tasks else list(PAPER_CHAIN)
+    # budgets of the paper's tasks and of those this sweep uses: a task added to the catalog changes no other
+    # sweep's definition (nor the reference's budgets, report.MERGE_SAME)
+    used = [t for t in TASKS if t in PAPER_CHAIN or t in tasks or t in order]
+    budgets = {role: {t: n for t, n in steps.items() if t in used}
+               for role, steps in (("single", p.single_steps), ("source", p.stage_steps), ("adapt", p.adaptation_steps))}
+    budgets["default"] = p.default_steps
     if a.source_steps is not None:
         if a.source_steps < 1:
             raise ConfigError(f"--source-steps must be >= 1, got {a.source_steps}")
-        for t in TASKS:
+        for t in used:
             budgets["single"][t] = budgets["source"][t] = a.source_steps
             budgets["adapt"][t] = max(1, round(a.source_steps * 120 / 200))  # paper: adaptation 120 vs 200 epochs
     if a.adapt_steps is not None:
         if a.adapt_steps < 1:
             raise ConfigError(f"--adapt-steps must be >= 1, got {a.adapt_steps}")
-        budgets["adapt"] = {t: a.adapt_steps for t in TASKS}
+        budgets["adapt"] = {t: a.adapt_steps for t in used}
     seeds = parse_seeds(a.seeds) if a.seeds is not None else p.seeds
     chain_seeds = parse_seeds(a.chain_seeds) if a.chain_seeds is not None else (
         seeds if a.seeds is not None else p.chain_seeds)
     settings = [o.text() for o in overrides.parse_all(a.set or [])]  # normalised, validated
-    order = _pick(a.task_order, TASKS, "task")
-    if len(set(order)) != len(order):
-        raise ConfigError(f"--task-order repeats a task: {a.task_order!r}")
     d = {
         "version": DEFINITION_VERSION,
         "preset": a.preset,
         "experiments": _experiments(a.experiments),
-        "tasks": _pick(a.tasks, TASKS, "task") if a.tasks else list(TASKS),
+        "tasks": tasks,
         "methods": _pick(a.methods, list(METHOD_SPECS), "method") if a.methods else list(METHOD_SPECS),
         "seeds": list(seeds),
         "chain_seeds": list(chain_seeds),
@@ -122,11 +127,10 @@ def definition_from_args(a: argparse.Namespace) -> dict:
         "preset_settings": list(p.settings),
         "settings": settings,
     }
-    if p.arm_seeds is not None and a.seeds is None and a.chain_seeds is None:
-        # the preset's seed table decides each arm's seeds; only the selected arms' keys, so editing another
-        # arm's entry leaves this sweep's definition (and its out folder) as it was
-        arms = {f"{exp.name}:{arm.name}" for exp, arm in selected_arms(d)}
-        d["arm_seeds"] = {k: n for k, n in p.arm_seeds.items() if ":".join(k.split(":")[:2]) in arms}
+    if p.seeds_from is not None and a.seeds is None and a.chain_seeds is None:
+        # the seeds each selected arm's cells have in the preset's results folder (none for an arm not run
+        # there); only the selected arms', so seeds added to another arm leave this definition as it was
+        d["arm_seeds"] = cell_seeds(p.seeds_from, {f"{exp.name}:{arm.name}" for exp, arm in selected_arms(d)})
     for name in (x.split(":")[0] for x in d["experiments"]):
         e = EXPERIMENTS[name]
         if not set(e.method_names()) & set(d["methods"]):
@@ -146,8 +150,10 @@ def check_out_folder(out: Path, d: dict, force: bool) -> None:
             old = json.loads(f.read_text())
         except (OSError, ValueError):
             old = {}
+        diff = sorted(k for k in set(old) | set(d) if old.get(k) != d.get(k))
+        if diff == ["arm_seeds"] and old.get("runs") == d.get("runs"):
+            return  # the reference's seeds in their older form (counts per arm, before issue 40): the same runs
         if old != d and not force:
-            diff = sorted(k for k in set(old) | set(d) if old.get(k) != d.get(k))
             raise ConfigError(f"{out} holds a different sweep (differs in: {', '.join(diff)}); "
                               f"use another --out, or --force to make this one current")
         return
@@ -194,22 +200,25 @@ def make_parser() -> argparse.ArgumentParser:
                    help=f"budget preset, one of {', '.join(PRESETS)} (listed below; default: %(default)s)")
     p.add_argument("--experiments", help="comma list of experiment names, or default (the paper's four), "
                                          "ablations, all; NAME:ARM+ARM runs some of its arms (default: default)")
-    p.add_argument("--tasks", help=f"tasks of single-task experiments (default: all: {','.join(TASKS)})")
+    p.add_argument("--tasks", help=f"tasks of single-task experiments, of the catalog {','.join(TASKS)} (default: the "
+                                   f"paper's, {','.join(PAPER_CHAIN)})")
     p.add_argument("--methods", help=f"comma list of {', '.join(METHOD_SPECS)} (default: all; each experiment "
                                      "uses those of them it is defined for)")
     p.add_argument("--seeds", help="a count or a comma list, for every experiment: '3' is a count (seeds 0,1,2); "
                                    "'0,4,7' lists seeds; one seed is a list of one, written with a trailing comma: "
                                    "'7,' is seed 7 ('7' is seeds 0-6). Default: the preset's; the reference preset's "
-                                   "are per arm (presets.REFERENCE_SEEDS: exactly the runs of results/reference), and "
-                                   "--seeds or --chain-seeds drops that table. Costly arms are capped (Arm/Experiment "
+                                   "are per arm, the seeds its cells have in results/reference/scores.csv (none for an "
+                                   "arm not run there), and --seeds or --chain-seeds drops them. Costly arms are capped "
+                                   "(Arm/Experiment "
                                    "max_seeds; --dry-run names them, with a seeds: line per arm): more seeds than a "
                                    "selected arm's cap are refused unless --allow-capped (then the cap applies)")
     p.add_argument("--allow-capped", action="store_true",
                    help="accept that capped arms run fewer seeds than --seeds/--chain-seeds ask")
     p.add_argument("--chain-seeds", "--transfer-seeds", dest="chain_seeds",
                    help="seeds of chain and scratch experiments only (same syntax as --seeds)")
-    p.add_argument("--task-order", default=",".join(TASKS),
-                   help="the transfer chain; the last task is the adaptation target (default: %(default)s)")
+    p.add_argument("--task-order", default=",".join(PAPER_CHAIN),
+                   help="the transfer chain, tasks of the catalog (config.TASKS); the last task is the adaptation "
+                        "target (default: the paper's chain, registry.PAPER_CHAIN: %(default)s)")
     p.add_argument("--source-steps", "--steps", dest="source_steps", type=int, metavar="N",
                    help="env steps of every single-task run and every source (not last) stage of a chain; the "
                         "adaptation (last) stage gets 120/200 of it, as in the paper, unless --adapt-steps. "
@@ -345,8 +354,10 @@ def _main(argv: Optional[Sequence[str]], held, train: Optional[Callable], report
     table = d.get("arm_seeds") is not None
     of = (lambda n: f"of the preset's {n} seeds (seed table)") if table else (lambda n: f"of the {n} seeds asked")
     for arm, cap, asked in capped:  # never a silent cut
+        flag = "--seeds" if EXPERIMENTS[arm.split("/")[0]].kind == "single" else "--chain-seeds"
         print(f"capped: {arm} runs {cap} {of(asked)}" + ("" if table else " (max_seeds)")
-              + (f": not in results/{a.preset}" if table and cap == 0 else ""))
+              + (f": not in {preset(a.preset).seeds_from} ({flag} {asked} runs it at the preset's {asked})"
+                 if table and cap == 0 else ""))
     if a.dry_run:
         for arm, group, seeds, asked in seed_plan(d):
             line = f"seeds: {arm}{' ' + group if group else ''}: {len(seeds)}"

@@ -13,9 +13,6 @@ from .storage import RingStorage
 
 Sampler = Union[UniformSampler, PrioritizedSampler]
 
-TRANSITION_KEYS = ("obs", "action", "reward", "next_obs", "done")
-
-
 def transition_fields(obs_dim: int, act_dim: int) -> Dict[str, tuple]:
     """Field spec of a transition row; ``obs_dim`` is the network input width (observation ‖ goal)."""
     f32 = np.dtype(np.float32)
