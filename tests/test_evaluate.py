@@ -312,7 +312,8 @@ def test_movie_and_trajectory_files(trained, tmp_path):
     assert h5.suffix == ".h5" and h5.is_file()
     meta = json.loads(h5.with_suffix(".json").read_text())
     assert [e["episode_seed"] for e in meta["episodes"]] == [HELDOUT_SEED_BASE, HELDOUT_SEED_BASE + 1]
-    assert meta["env_info"]["env_id"] == "CloseBox-v1" and "render_backend" not in meta["env_info"]["env_kwargs"]
+    assert meta["env_info"]["env_id"] == "maniskill_dualher.tasks:CloseBox-v1"  # replayable in a fresh process
+    assert "render_backend" not in meta["env_info"]["env_kwargs"]
     with h5py.File(h5, "r") as f:
         assert sorted(f) == ["traj_0", "traj_1"]
         for k, ep in enumerate(r["per_episode"]):
@@ -325,18 +326,35 @@ def test_movie_and_trajectory_files(trained, tmp_path):
     assert not list(tmp_path.glob(".*tmp*"))  # no temp files left
 
 
-def test_maniskill_replay_tool_replays_a_recorded_trajectory(trained, tmp_path):
-    """ManiSkill's own replay tool, its defaults (render_mode="rgb_array", replay by actions) except the path, after
-    importing our tasks: it replays every recorded episode, and each reaches the recorded outcome."""
-    r = evaluate_policy(trained["out"], "ReachTarget-v1", episodes=2, record=tmp_path / "rec")
-    h5 = Path(r["trajectory"])
-    code = ("import maniskill_dualher.tasks, runpy; "
-            "runpy.run_module('mani_skill.trajectory.replay_trajectory', run_name='__main__')")
-    p = subprocess.run([sys.executable, "-c", code, "--traj-path", str(h5)], capture_output=True, text=True,
-                       timeout=300, cwd=tmp_path)
+def _doc_block(doc: Path, heading: str) -> list:
+    """The command lines of the first ```bash block under ``heading`` in ``doc``."""
+    text = doc.read_text().split(heading, 1)[1]
+    block = text.split("```bash\n", 1)[1].split("```", 1)[0]
+    return [ln for ln in block.splitlines() if ln.strip()]
+
+
+def test_the_documented_replay_recipe_runs_as_typed(tmp_path):
+    """docs/tasks.md's replay recipe, its two lines exactly as written, each in a fresh shell (nothing imported
+    first: ManiSkill's replay tool finds our tasks through the recorded env id's module): evaluate --record writes
+    the trajectory, the replay tool's defaults (render_mode "rgb_array", replay by actions) replay every episode
+    to its recorded outcome."""
+    import os
+    import re
+    root = Path(__file__).resolve().parents[1]
+    lines = _doc_block(root / "docs" / "tasks.md", "### Replaying a recording")
+    assert len(lines) == 2 and lines[1].startswith("python -m mani_skill.trajectory.replay_trajectory --traj-path ")
+    (tmp_path / "results").symlink_to(root / "results")   # the recipe runs from the repository's root
+    env = dict(os.environ, PATH=f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}")
+    p = subprocess.run(lines[0], shell=True, capture_output=True, text=True, timeout=300, cwd=tmp_path, env=env)
     assert p.returncode == 0, p.stderr[-2000:]
-    k = sum(e["success"] for e in r["per_episode"])
-    assert f"Replayed 2 episodes, {k}/2=" in p.stdout + p.stderr
+    k, n = map(int, re.search(r"success +[0-9.]+ \((\d+)/(\d+)\)", p.stdout).groups())
+    meta = json.loads(next((tmp_path / "traj").glob("*.json")).read_text())
+    assert meta["env_info"]["env_id"] == "maniskill_dualher.tasks:CloseBox-v1"
+    p = subprocess.run(lines[1], shell=True, capture_output=True, text=True, timeout=300, cwd=tmp_path, env=env)
+    assert p.returncode == 0, p.stderr[-2000:]
+    assert f"Replayed {n} episodes, {k}/{n}=" in p.stdout, p.stdout[-2000:]
+    assert f"Replayed {n} episodes, {n}/{n}=100.00%" in (root / "docs" / "tasks.md").read_text()  # as the doc says
+    assert k == n
 
 
 def test_zero_shot_matrix(trained, tmp_path):
