@@ -36,3 +36,23 @@ def _glue_negative_values(parser: argparse.ArgumentParser, argv):
         i += 1
     return out
 
+
+
+def missing_package(module: str, purpose: str):
+    """None if ``module`` imports, else one line saying what to install: ``purpose`` (e.g. "report draws its
+    figures with") + the requirement as pyproject.toml states it (a dependency a broken install lacks)."""
+    import importlib
+    try:
+        importlib.import_module(module)
+        return None
+    except ImportError:
+        pass
+    req = module
+    try:
+        from importlib.metadata import requires
+        import re
+        req = next((r for r in requires("maniskill_dualher") or () if ";" not in r  # not an extra's
+                    and re.split(r"[<>=!~\[ ]", r, 1)[0].lower() == module.lower()), module)
+    except Exception:  # noqa: BLE001  (not installed as a package: a source checkout)
+        pass
+    return f"{purpose} {module}, which is not installed here: pip install '{req}' (a dependency of maniskill_dualher)"

@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Callable, List, Optional, Sequence, Tuple
 
 from .. import rundir
-from ..cmdline import OneLineParser
+from ..cmdline import OneLineParser, missing_package
 from ..config import TASKS, ConfigError
 from ..methods import METHOD_SPECS
 from ..rundir import RUNS_DIR, SWEEP
@@ -318,6 +318,10 @@ def _main(argv: Optional[Sequence[str]], held, train: Optional[Callable], report
                 import ray  # noqa: F401
             except ImportError:
                 raise ConfigError("--backend ray needs Ray: pip install 'ray[default]'") from None
+        if not (a.no_report or a.dry_run or a.emit_commands) and report is not None:  # its end, before hours
+            need = missing_package("matplotlib", "the report at the end (--no-report skips it) draws its figures with")
+            if need:
+                raise ConfigError(need)
         if a.pack < 1:
             raise ConfigError(f"--pack must be >= 1, got {a.pack}")
         if a.retries < 0:
