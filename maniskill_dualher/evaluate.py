@@ -48,7 +48,7 @@ from typing import Dict, List, Optional, Sequence
 
 import numpy as np
 
-from .cli import OneLineParser
+from .cli import OneLineParser, did_you_mean, old_flag
 from .config import OUR_TASKS, ConfigError, RunConfig
 from .envs import EVAL_SEED_BASE, BatchEnv, make_env
 from .movie import MOVIE_SUFFIXES, draw_movie, task_info
@@ -327,10 +327,11 @@ def build_parser() -> argparse.ArgumentParser:
     seeds.add_argument("--train-eval-seeds", action="store_true",
                        help=f"use the training evaluations' seeds (EVAL_SEED_BASE = {EVAL_SEED_BASE}, +1, ...): "
                             "reproduces the run's own evaluation, optimistic for a policy chosen by it (--best)")
-    seeds.add_argument("--reset-seed", "--seed", dest="seed", default=None, metavar="S",
+    seeds.add_argument("--reset-seed", dest="seed", default=None, metavar="S",
                        help="the first episode's env reset seed (not a training seed: the policy is fixed); "
                             "episodes reset with S, S+1, ... [default: HELDOUT_SEED_BASE = "
-                            f"{HELDOUT_SEED_BASE}, seeds no training evaluation used] (--seed: old name)")
+                            f"{HELDOUT_SEED_BASE}, seeds no training evaluation used]")
+    old_flag(p, "--seed", "the first episode's env reset seed is --reset-seed S (--seed is train's run seed)")
     p.add_argument("--best", action="store_true", help="use policy_best.pt (the best evaluation) instead of policy.pt")
     p.add_argument("--record", metavar="DIR", help="write ManiSkill .h5/.json trajectories (replayable to video) here")
     p.add_argument("--movie", metavar="FILE", help="draw one episode's state to FILE (.gif or .mp4)")
@@ -392,7 +393,8 @@ def _known_env(env_id: str) -> None:
     import gymnasium as gym
     import maniskill_dualher.tasks  # noqa: F401  (registers our tasks)
     if env_id not in gym.registry:
-        raise ConfigError(f"unknown environment {env_id!r} (our tasks: {', '.join(OUR_TASKS)})")
+        raise ConfigError(f"unknown environment {env_id!r} (our tasks: {', '.join(OUR_TASKS)})"
+                          + did_you_mean(env_id, OUR_TASKS))
 
 
 if __name__ == "__main__":

@@ -254,7 +254,10 @@ def test_cli_train_eval_seeds_reproduce_the_runs_evaluation(trained):
     (["{run}", "--movie", "{tmp}/x.png"], "x.png"),
     (["{run}", "--movie", "{tmp}/x.gif", "--episodes", "2", "--movie-episode", "2"], "movie-episode"),
     (["{run}", "--no-such-flag"], "--no-such-flag"),
-    (["{run}", "--train-eval-seeds", "--seed", "5"], "--seed"),
+    (["{run}", "--train-eval-seeds", "--seed", "5"], "--seed is not a flag here: the first episode's env reset "
+                                                     "seed is --reset-seed S (--seed is train's run seed)"),
+    (["{run}", "--task", "ClosBox-v1"], "(did you mean CloseBox-v1?)"),
+    (["{run}", "--episods", "3"], "unrecognized arguments: --episods 3 (did you mean --episodes?)"),
     ([], "run folder"),
     (["--zero-shot-matrix", "{empty}"], "no finished run"),
 ])
@@ -273,7 +276,7 @@ def test_cli_bad_input_is_one_line(trained, tmp_path, capsys, args, needle):
 
 @pytest.mark.parametrize("args, needle", [
     (["--reset-seed", "-1"], "--reset-seed must be >= 0, got -1"),
-    (["--seed", "x"], "--reset-seed: bad value 'x'"),  # the old name, same check
+    (["--seed", "3"], "--reset-seed S"),  # the old name: one line naming the new one
     (["--reset-seed", "3", "--train-eval-seeds"], "not allowed with"),
 ])
 def test_reset_seed_bad_input_one_line_nothing_written(tmp_path, capsys, args, needle):
@@ -292,7 +295,8 @@ def test_help_says_the_seed_is_a_reset_seed(capsys):
         main(["--help"])
     assert e.value.code == 0
     text = " ".join(capsys.readouterr().out.split())
-    assert "--reset-seed S, --seed S" in text and "env reset seed (not a training seed" in text
+    assert "--reset-seed S" in text and "env reset seed (not a training seed" in text
+    assert "--seed " not in text  # train's run seed; here an old spelling, refused with the new one
 
 
 def test_cli_bad_input_exit_code(tmp_path):

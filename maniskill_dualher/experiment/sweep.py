@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Callable, List, Optional, Sequence, Tuple
 
 from .. import rundir
-from ..cmdline import OneLineParser, missing_package
+from ..cmdline import OneLineParser, did_you_mean, missing_package, old_flag
 from ..config import TASKS, ConfigError
 from ..methods import METHOD_SPECS
 from ..rundir import RUNS_DIR, SWEEP
@@ -61,7 +61,7 @@ def _pick(text: str, allowed: Sequence[str], what: str) -> List[str]:
     items = _split(text)
     for x in items:
         if x not in allowed:
-            raise ConfigError(f"unknown {what} {x!r} (choose from {', '.join(allowed)})")
+            raise ConfigError(f"unknown {what} {x!r} (choose from {', '.join(allowed)}){did_you_mean(x, allowed)}")
     if not items:
         raise ConfigError(f"no {what} given")
     return items
@@ -210,10 +210,12 @@ def make_parser() -> argparse.ArgumentParser:
                    help="seeds of chain and scratch experiments only (same syntax as --seeds)")
     p.add_argument("--task-order", default=",".join(TASKS),
                    help="the transfer chain; the last task is the adaptation target (default: %(default)s)")
-    p.add_argument("--source-steps", "--steps", dest="source_steps", type=int, metavar="N",
+    p.add_argument("--source-steps", dest="source_steps", type=int, metavar="N",
                    help="env steps of every single-task run and every source (not last) stage of a chain; the "
                         "adaptation (last) stage gets 120/200 of it, as in the paper, unless --adapt-steps. "
-                        "Not train's --total-steps: a chain's total is the sum of its stages (--steps: old name)")
+                        "Not train's --total-steps: a chain's total is the sum of its stages")
+    old_flag(p, "--steps", "the single-task and source-stage budget is --source-steps N, the adaptation's "
+                           "--adapt-steps N (train's whole run: --total-steps)")
     p.add_argument("--adapt-steps", type=int, metavar="N",
                    help="env steps of the adaptation (last) stage of a chain, and of scratch runs")
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
