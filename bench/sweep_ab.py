@@ -44,8 +44,11 @@ def git_commit(tree: Path) -> str:
 def sweep(tree: Path, out: Path, a, tasks: str, seeds: str, steps: int) -> float:
     env = dict(os.environ, PYTHONPATH=str(tree))
     env.pop("MANISKILL_DUALHER_LEAN_STEP", None)  # each side's default path
+    # the budget's flag as that tree spells it: --source-steps since cf82867 (issue 31), --steps before
+    flag = "--source-steps" if "--source-steps" in (tree / "maniskill_dualher/experiment/sweep.py").read_text() \
+        else "--steps"
     cmd = [sys.executable, "-m", "maniskill_dualher.sweep", "--preset", a.preset, "--experiments", "single",
-           "--tasks", tasks, "--methods", a.methods, "--seeds", seeds, "--steps", str(steps),
+           "--tasks", tasks, "--methods", a.methods, "--seeds", seeds, flag, str(steps),
            "--workers", str(a.workers), "--out", str(out), "--no-report"]
     t0 = time.perf_counter()
     r = subprocess.run(cmd, cwd=tree, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)

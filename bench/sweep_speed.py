@@ -70,7 +70,7 @@ def main(argv=None) -> int:
         for S in packs:
             out = Path(tmp) / f"pack{S}"
             cmd = [sys.executable, "-m", "maniskill_dualher.sweep", "--preset", a.preset, "--experiments", "single",
-                   "--tasks", a.tasks, "--methods", a.methods, "--seeds", a.seeds, "--steps", str(a.steps),
+                   "--tasks", a.tasks, "--methods", a.methods, "--seeds", a.seeds, "--source-steps", str(a.steps),
                    "--workers", str(a.workers), "--pack", str(S), "--out", str(out), "--no-report"]
             t0 = time.perf_counter()
             r = subprocess.run(cmd, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)

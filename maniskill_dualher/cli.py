@@ -9,22 +9,50 @@ import json
 import sys
 from pathlib import Path
 
-from .cmdline import OneLineParser  # noqa: F401 (train's parser; evaluate imports it from here)
-from .config import (DUAL_MODES, E_BATCHES, HER_STRATEGIES, MATMUL_PRECISIONS, SAC_VARIANTS, SIM_BACKENDS, SUCCESS_BUFFER_MODES,
-                     UPDATE_IMPLS, UPDATE_SCHEDULES, ConfigError, ReplayConfig, RunConfig, SACConfig, field_docs,
-                     format_ratio)
+from .cmdline import OneLineParser, did_you_mean, old_flag  # noqa: F401 (train's parser; evaluate imports it here)
+from .config import (DUAL_MODES, E_BATCHES, HER_STRATEGIES, MATMUL_PRECISIONS, OUR_TASKS, SAC_VARIANTS, SIM_BACKENDS,
+                     SUCCESS_BUFFER_MODES, UPDATE_IMPLS, UPDATE_SCHEDULES, ConfigError, ReplayConfig, RunConfig,
+                     SACConfig, field_docs, format_ratio)
+from .methods import METHOD_SPECS
 
 # --------------------------------------------------------------------------- python -m maniskill_dualher.train
 _SECTIONS = {"sac": SACConfig, "replay": ReplayConfig}
-# --- issue 31 (one CLI vocabulary): the sweep's spellings are the main names (--task as sweep's --tasks;
-# --total-steps, since sweep's --steps is a source-stage budget); the old spellings stay as aliases.
+# One word, one meaning across train, sweep and evaluate (issues 31, 43): --task as sweep's --tasks (--env, the
+# same thing, stays); the whole run is --total-steps (sweep's budgets are --source-steps and --adapt-steps), so
+# --steps is no flag anywhere: it answers with the new spelling.
 _ALIASES = {"env_id": "task", "total_steps": "total-steps"}
-_OLD_SPELLINGS = {"env_id": ("--env",), "total_steps": ("--steps",)}
+_OLD_SPELLINGS = {"env_id": ("--env",)}
 # every enumerated field lists its choices in --help and refuses others in one line (argparse choices)
 _CHOICES = {"variant": SAC_VARIANTS, "her_strategy": HER_STRATEGIES, "dual_mode": DUAL_MODES,
             "update_schedule": UPDATE_SCHEDULES, "matmul_precision": MATMUL_PRECISIONS, "update_impl": UPDATE_IMPLS,
             "success_buffer": SUCCESS_BUFFER_MODES, "sim_backend": SIM_BACKENDS, "e_batches": E_BATCHES}
-# --- end issue 31
+NO_PRESET_NOTE = ("note: no --preset or --config: the paper's Table 3 settings (RunConfig's defaults), which "
+                  "learned nothing in 20k env steps on ReachTarget here; --preset quick has settings that learn in "
+                  "minutes")
+
+
+def flag_of(name: str) -> str:
+    """A config field's train flag: total_steps -> --total-steps, env_id -> --task."""
+    return "--" + _ALIASES.get(name, name).replace("_", "-")
+
+
+def _field_names():
+    return [f.name for cls in (RunConfig, SACConfig, ReplayConfig) for f in dataclasses.fields(cls)
+            if f.name not in _SECTIONS]
+
+
+def name_flags(message: str, keep=()) -> str:
+    """A validation message in the words the user typed: a field name becomes its flag (``total_steps must
+    be > 0`` -> ``--total-steps must be > 0``), except those in ``keep`` (given through --set KEY=VALUE)."""
+    import re
+    for name in sorted(_field_names(), key=len, reverse=True):
+        if name in keep:
+            continue
+        if "_" in name:
+            message = re.sub(rf"(?<![\w.'\"-]){name}(?![\w'\"])", flag_of(name), message)
+        else:  # a plain word (seed, lr, hidden) only where it is the subject
+            message = re.sub(rf"^{name}(?= must|=|,| and )", flag_of(name), message)
+    return message
 
 
 def _field_flags(parser: argparse.ArgumentParser) -> None:
@@ -45,8 +73,10 @@ def _field_flags(parser: argparse.ArgumentParser) -> None:
             flags = (f"--{name}",) + _OLD_SPELLINGS.get(f.name, ())
             if isinstance(default, bool) or f.name in ("learn_alpha",):
                 g.add_argument(*flags, dest=dest, action=argparse.BooleanOptionalAction, default=None, help=help_)
-            elif f.name in _CHOICES:
-                g.add_argument(*flags, dest=dest, default=None, choices=_CHOICES[f.name], help=help_)
+            elif f.name in _CHOICES or f.name == "method":
+                # methods: the registry as the parser is built (a method registered at run time is in)
+                choices = list(METHOD_SPECS) if f.name == "method" else _CHOICES[f.name]
+                g.add_argument(*flags, dest=dest, default=None, choices=choices, help=help_)
             else:
                 g.add_argument(*flags, dest=dest, default=None, metavar=f.name.upper(), help=help_)
 
@@ -76,18 +106,28 @@ def train_config(args: argparse.Namespace) -> RunConfig:
             value = raw if isinstance(raw, bool) else overrides.coerce(path, raw)
         except ConfigError as e:
             if not str(e).startswith("bad value for"):  # a message that already names the value (ratios)
-                raise
-            raise ConfigError(f"--{_ALIASES.get(name, name).replace('_', '-')}: bad value {raw!r}") from None
+                raise ConfigError(name_flags(str(e))) from None
+            raise ConfigError(f"{flag_of(name)}: bad value {raw!r}") from None
         items.append(overrides.Override(path, value))
     if args.preset:
         from .experiment.presets import preset
         given = {o.path: o.value for o in items}
         base = preset(args.preset).single_config(given.get("method", base.method), given.get("seed", base.seed),
                                                  given.get("env_id", base.env_id))
-    items += [overrides.parse(i) for i in (args.set or [])]
+    given_by_set = [overrides.parse(i) for i in (args.set or [])]
+    items += given_by_set
     if any(o.stage for o in items):
         raise ConfigError("train runs one stage: --set takes KEY=VALUE without a stage prefix (adapt., source.)")
-    return overrides.apply(base, items).validate()
+    try:
+        cfg = overrides.apply(base, items).validate()
+    except ConfigError as e:
+        raise ConfigError(name_flags(str(e), keep={o.path.split(".")[-1] for o in given_by_set})) from None
+    if cfg.env_id not in OUR_TASKS and did_you_mean(cfg.env_id, OUR_TASKS):  # a typo of ours, not another env
+        import gymnasium as gym
+        import maniskill_dualher.tasks  # noqa: F401  (registers our tasks)
+        if cfg.env_id not in gym.registry:
+            raise ConfigError(f"--task: unknown environment {cfg.env_id!r}{did_you_mean(cfg.env_id, OUR_TASKS)}")
+    return cfg
 
 
 def train_parser() -> argparse.ArgumentParser:
@@ -98,9 +138,10 @@ def train_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="run folder (created; resumed if it holds a checkpoint)")
     p.add_argument("--config", help="JSON file with a RunConfig (flags override it)")
     from .experiment.presets import PRESETS  # issue 31: --preset lists its choices
-    p.add_argument("--preset", choices=list(PRESETS), help="start from a sweep preset's settings and this task's single-task budget "
-                                    "(quick: settings that learn in minutes; without it the defaults are the "
-                                    "paper's Table 3, which learned nothing in 20k env steps on ReachTarget)")
+    p.add_argument("--preset", choices=list(PRESETS),
+                   help="start from a sweep preset's settings and this task's single-task budget (quick: settings "
+                        "that learn in minutes; without it the defaults are the paper's Table 3, which learned "
+                        "nothing in 20k env steps on ReachTarget: the run says so in one line)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="any RunConfig setting, dotted (sac.lr=3e-4, replay.ratio=1/0); repeatable")
     p.add_argument("--init-from", help="a finished run folder whose networks start this run (transfer)")
@@ -109,4 +150,5 @@ def train_parser() -> argparse.ArgumentParser:
                    help="keep the replay buffers in the finished run's checkpoint (for a later --carry-replay)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     _field_flags(p)
+    old_flag(p, "--steps", "the whole run is --total-steps N (sweep's budgets: --source-steps, --adapt-steps)")
     return p

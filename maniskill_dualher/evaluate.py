@@ -29,10 +29,9 @@ Seeing an episode without a render device:
 
 * ``--record DIR`` wraps the ManiSkill env in ``RecordEpisode(save_trajectory=True, record_env_state=True)``,
   with ``save_video=True`` where the simulator can render (``scene.can_render()``): DIR/<name>.h5 + .json.
-  ManiSkill's replay tool takes them as it takes its own (our tasks must be registered: import them first)::
-
-      python -c "import maniskill_dualher.tasks, runpy; runpy.run_module('mani_skill.trajectory.replay_trajectory', \
-                 run_name='__main__')" --traj-path DIR/<name>.h5 [--use-env-states] [--save-video]
+  Their env id names the module that registers it (``maniskill_dualher.tasks:CloseBox-v1``), so ManiSkill's
+  replay tool takes them as typed, in a fresh process (the recipe: ``docs/tasks.md``, "Replaying a recording";
+  tested, ``tests/test_evaluate.py``).
 
 * ``--movie FILE`` (.gif or .mp4) draws one episode's state (``--movie-episode K``, default the first) with
   matplotlib (``movie.py``).
@@ -49,13 +48,14 @@ from typing import Dict, List, Optional, Sequence
 
 import numpy as np
 
-from .cli import OneLineParser
+from .cli import OneLineParser, did_you_mean, old_flag
 from .config import OUR_TASKS, ConfigError, RunConfig
 from .envs import EVAL_SEED_BASE, BatchEnv, make_env
 from .movie import MOVIE_SUFFIXES, draw_movie, task_info
 from .policy import Policy, load_policy
 
 ZERO_SHOT_CSV = "zero_shot.csv"
+TASKS_MODULE = "maniskill_dualher.tasks"  # the module that registers OUR_TASKS (a recorded env id names it)
 CONFIDENCE = 0.95
 # Held-out reset seeds: far from the training evaluations' EVAL_SEED_BASE + i and below 2**31 - 1 (ManiSkill's
 # seed range); training episodes (run_seed * 1_000_003 + episode) reach them only for run seeds near 2000.
@@ -206,15 +206,26 @@ def _can_render(env: BatchEnv) -> bool:
 
 
 def _replayable_json(path: Path) -> None:
-    """RecordEpisode stores our env kwargs, render_backend "none" included, which would stop a replay on a
-    machine that renders from making its video: drop it (our tasks then pick a backend themselves)."""
+    """Make ManiSkill's replay tool take the file as typed, in a process where nothing imported our tasks:
+    the env id names its module (``maniskill_dualher.tasks:CloseBox-v1``; gymnasium imports the module named
+    before ``:`` and then makes the env), and RecordEpisode's render_backend "none" is dropped, which would
+    stop a replay on a machine that renders from making its video (our tasks then pick a backend
+    themselves)."""
     from .fileio import atomic_write_text
     if not path.is_file():
         return
     doc = json.loads(path.read_text())
-    kw = doc.get("env_info", {}).get("env_kwargs", {})
+    info = doc.get("env_info", {})
+    kw = info.get("env_kwargs", {})
+    changed = False
     if kw.get("render_backend") == "none":
         kw.pop("render_backend")
+        changed = True
+    env_id = info.get("env_id")
+    if env_id in OUR_TASKS:
+        info["env_id"] = f"{TASKS_MODULE}:{env_id}"
+        changed = True
+    if changed:
         atomic_write_text(path, json.dumps(doc, indent=2))
 
 
@@ -316,10 +327,11 @@ def build_parser() -> argparse.ArgumentParser:
     seeds.add_argument("--train-eval-seeds", action="store_true",
                        help=f"use the training evaluations' seeds (EVAL_SEED_BASE = {EVAL_SEED_BASE}, +1, ...): "
                             "reproduces the run's own evaluation, optimistic for a policy chosen by it (--best)")
-    seeds.add_argument("--reset-seed", "--seed", dest="seed", default=None, metavar="S",
+    seeds.add_argument("--reset-seed", dest="seed", default=None, metavar="S",
                        help="the first episode's env reset seed (not a training seed: the policy is fixed); "
                             "episodes reset with S, S+1, ... [default: HELDOUT_SEED_BASE = "
-                            f"{HELDOUT_SEED_BASE}, seeds no training evaluation used] (--seed: old name)")
+                            f"{HELDOUT_SEED_BASE}, seeds no training evaluation used]")
+    old_flag(p, "--seed", "the first episode's env reset seed is --reset-seed S (--seed is train's run seed)")
     p.add_argument("--best", action="store_true", help="use policy_best.pt (the best evaluation) instead of policy.pt")
     p.add_argument("--record", metavar="DIR", help="write ManiSkill .h5/.json trajectories (replayable to video) here")
     p.add_argument("--movie", metavar="FILE", help="draw one episode's state to FILE (.gif or .mp4)")
@@ -381,7 +393,8 @@ def _known_env(env_id: str) -> None:
     import gymnasium as gym
     import maniskill_dualher.tasks  # noqa: F401  (registers our tasks)
     if env_id not in gym.registry:
-        raise ConfigError(f"unknown environment {env_id!r} (our tasks: {', '.join(OUR_TASKS)})")
+        raise ConfigError(f"unknown environment {env_id!r} (our tasks: {', '.join(OUR_TASKS)})"
+                          + did_you_mean(env_id, OUR_TASKS))
 
 
 if __name__ == "__main__":

@@ -12,6 +12,7 @@ from typing import List, Optional
 
 import numpy as np
 
+from .cmdline import missing_package
 from .config import ConfigError
 
 MOVIE_SUFFIXES = (".gif", ".mp4")
@@ -37,13 +38,13 @@ def draw_movie(ep: dict, info: dict, path, title_source=None, fps: int = 10,
     from the flat observations (slots in tasks/common.py): x-y and x-z paths of the TCP and the achieved goal
     with the desired goal and its tolerance circle, distance to goal vs step with the tolerance line, and the
     hinge angle (hinged tasks) or per-axis goal error (ReachTarget)."""
-    try:
-        import matplotlib
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-        from matplotlib.patches import Circle
-    except ImportError:
-        raise ConfigError("--movie needs matplotlib (pip install -e '.[plot]')") from None
+    need = missing_package("matplotlib", "--movie draws with")
+    if need:
+        raise ConfigError(need)
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Circle
     from .tasks.common import GOAL_DIM, OBS_DIM, OBS_SLICES
 
     path = Path(path)

@@ -1,6 +1,6 @@
 """Training: one driver (``train_runs``) steps a list of runs; a run alone is a pack of one.
 
-    python -m maniskill_dualher.train --env ReachTarget-v1 --method dual_buffer --seed 0 --steps 30000 --out runs/x
+    python -m maniskill_dualher.train --preset quick --task ReachTarget-v1 --method dual_buffer --seed 0 --out runs/x
 
 ``train_runs`` reads top to bottom as the whole loop: every run acts, steps and stores one env step; the
 updates that are due are made (batched across runs with equal networks and settings, ``pack.Updater``: that
@@ -694,7 +694,20 @@ def _solver_action(solver, env: BatchEnv) -> np.ndarray:
 
 # --------------------------------------------------------------------------- python -m maniskill_dualher.train
 # (the flags and how they become a RunConfig live in cli.py)
-from .cli import train_config as config_from_args, train_parser as build_parser  # noqa: E402
+from .cli import NO_PRESET_NOTE, train_config as config_from_args, train_parser as build_parser  # noqa: E402
+
+
+def _say_once(line: str) -> Progress:
+    """A progress callback that writes ``line`` to stderr at the run's first env step (past every check of its
+    input, so bad input stays one line), above the progress bar."""
+    said = []
+
+    def progress(out, env_steps, total):
+        if not said:
+            said.append(True)
+            from tqdm import tqdm
+            tqdm.write(line, file=sys.stderr)
+    return progress
 
 
 def main(argv=None) -> int:
@@ -703,7 +716,8 @@ def main(argv=None) -> int:
     try:
         cfg = config_from_args(args)
         final = run_training(cfg, args.out, init_from=args.init_from, carry_replay=args.carry_replay,
-                             show_progress=not args.no_progress, keep_replay=args.keep_replay)
+                             show_progress=not args.no_progress, keep_replay=args.keep_replay,
+                             progress=None if args.preset or args.config else _say_once(NO_PRESET_NOTE))
     except ConfigError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

@@ -254,7 +254,10 @@ def test_cli_train_eval_seeds_reproduce_the_runs_evaluation(trained):
     (["{run}", "--movie", "{tmp}/x.png"], "x.png"),
     (["{run}", "--movie", "{tmp}/x.gif", "--episodes", "2", "--movie-episode", "2"], "movie-episode"),
     (["{run}", "--no-such-flag"], "--no-such-flag"),
-    (["{run}", "--train-eval-seeds", "--seed", "5"], "--seed"),
+    (["{run}", "--train-eval-seeds", "--seed", "5"], "--seed is not a flag here: the first episode's env reset "
+                                                     "seed is --reset-seed S (--seed is train's run seed)"),
+    (["{run}", "--task", "ClosBox-v1"], "(did you mean CloseBox-v1?)"),
+    (["{run}", "--episods", "3"], "unrecognized arguments: --episods 3 (did you mean --episodes?)"),
     ([], "run folder"),
     (["--zero-shot-matrix", "{empty}"], "no finished run"),
 ])
@@ -273,7 +276,7 @@ def test_cli_bad_input_is_one_line(trained, tmp_path, capsys, args, needle):
 
 @pytest.mark.parametrize("args, needle", [
     (["--reset-seed", "-1"], "--reset-seed must be >= 0, got -1"),
-    (["--seed", "x"], "--reset-seed: bad value 'x'"),  # the old name, same check
+    (["--seed", "3"], "--reset-seed S"),  # the old name: one line naming the new one
     (["--reset-seed", "3", "--train-eval-seeds"], "not allowed with"),
 ])
 def test_reset_seed_bad_input_one_line_nothing_written(tmp_path, capsys, args, needle):
@@ -292,7 +295,8 @@ def test_help_says_the_seed_is_a_reset_seed(capsys):
         main(["--help"])
     assert e.value.code == 0
     text = " ".join(capsys.readouterr().out.split())
-    assert "--reset-seed S, --seed S" in text and "env reset seed (not a training seed" in text
+    assert "--reset-seed S" in text and "env reset seed (not a training seed" in text
+    assert "--seed " not in text  # train's run seed; here an old spelling, refused with the new one
 
 
 def test_cli_bad_input_exit_code(tmp_path):
@@ -312,7 +316,8 @@ def test_movie_and_trajectory_files(trained, tmp_path):
     assert h5.suffix == ".h5" and h5.is_file()
     meta = json.loads(h5.with_suffix(".json").read_text())
     assert [e["episode_seed"] for e in meta["episodes"]] == [HELDOUT_SEED_BASE, HELDOUT_SEED_BASE + 1]
-    assert meta["env_info"]["env_id"] == "CloseBox-v1" and "render_backend" not in meta["env_info"]["env_kwargs"]
+    assert meta["env_info"]["env_id"] == "maniskill_dualher.tasks:CloseBox-v1"  # replayable in a fresh process
+    assert "render_backend" not in meta["env_info"]["env_kwargs"]
     with h5py.File(h5, "r") as f:
         assert sorted(f) == ["traj_0", "traj_1"]
         for k, ep in enumerate(r["per_episode"]):
@@ -325,18 +330,35 @@ def test_movie_and_trajectory_files(trained, tmp_path):
     assert not list(tmp_path.glob(".*tmp*"))  # no temp files left
 
 
-def test_maniskill_replay_tool_replays_a_recorded_trajectory(trained, tmp_path):
-    """ManiSkill's own replay tool, its defaults (render_mode="rgb_array", replay by actions) except the path, after
-    importing our tasks: it replays every recorded episode, and each reaches the recorded outcome."""
-    r = evaluate_policy(trained["out"], "ReachTarget-v1", episodes=2, record=tmp_path / "rec")
-    h5 = Path(r["trajectory"])
-    code = ("import maniskill_dualher.tasks, runpy; "
-            "runpy.run_module('mani_skill.trajectory.replay_trajectory', run_name='__main__')")
-    p = subprocess.run([sys.executable, "-c", code, "--traj-path", str(h5)], capture_output=True, text=True,
-                       timeout=300, cwd=tmp_path)
+def _doc_block(doc: Path, heading: str) -> list:
+    """The command lines of the first ```bash block under ``heading`` in ``doc``."""
+    text = doc.read_text().split(heading, 1)[1]
+    block = text.split("```bash\n", 1)[1].split("```", 1)[0]
+    return [ln for ln in block.splitlines() if ln.strip()]
+
+
+def test_the_documented_replay_recipe_runs_as_typed(tmp_path):
+    """docs/tasks.md's replay recipe, its two lines exactly as written, each in a fresh shell (nothing imported
+    first: ManiSkill's replay tool finds our tasks through the recorded env id's module): evaluate --record writes
+    the trajectory, the replay tool's defaults (render_mode "rgb_array", replay by actions) replay every episode
+    to its recorded outcome."""
+    import os
+    import re
+    root = Path(__file__).resolve().parents[1]
+    lines = _doc_block(root / "docs" / "tasks.md", "### Replaying a recording")
+    assert len(lines) == 2 and lines[1].startswith("python -m mani_skill.trajectory.replay_trajectory --traj-path ")
+    (tmp_path / "results").symlink_to(root / "results")   # the recipe runs from the repository's root
+    env = dict(os.environ, PATH=f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}")
+    p = subprocess.run(lines[0], shell=True, capture_output=True, text=True, timeout=300, cwd=tmp_path, env=env)
     assert p.returncode == 0, p.stderr[-2000:]
-    k = sum(e["success"] for e in r["per_episode"])
-    assert f"Replayed 2 episodes, {k}/2=" in p.stdout + p.stderr
+    k, n = map(int, re.search(r"success +[0-9.]+ \((\d+)/(\d+)\)", p.stdout).groups())
+    meta = json.loads(next((tmp_path / "traj").glob("*.json")).read_text())
+    assert meta["env_info"]["env_id"] == "maniskill_dualher.tasks:CloseBox-v1"
+    p = subprocess.run(lines[1], shell=True, capture_output=True, text=True, timeout=300, cwd=tmp_path, env=env)
+    assert p.returncode == 0, p.stderr[-2000:]
+    assert f"Replayed {n} episodes, {k}/{n}=" in p.stdout, p.stdout[-2000:]
+    assert f"Replayed {n} episodes, {n}/{n}=100.00%" in (root / "docs" / "tasks.md").read_text()  # as the doc says
+    assert k == n
 
 
 def test_zero_shot_matrix(trained, tmp_path):

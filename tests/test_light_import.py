@@ -74,3 +74,19 @@ def test_hyperparameters_of_a_results_folder_are_built_without_torch(tmp_path):
     p = _run_blocked(tmp_path, code)
     assert p.returncode == 0, p.stderr[-2000:]
     assert p.stdout.strip() == "True"
+
+
+def test_report_and_sweep_without_matplotlib_say_what_to_install(tmp_path):
+    """matplotlib is a dependency (report ends every sweep); an install that lacks it gets one line saying what
+    to install, exit 2, no traceback: from report, and from sweep before it trains anything."""
+    (tmp_path / "sitecustomize.py").write_text(BLOCKER.replace(repr(HEAVY), repr(("matplotlib",))))
+    env = {"PYTHONPATH": f"{tmp_path}:{REPO}", "PATH": "/usr/bin:/bin", "HOME": str(tmp_path)}
+    import shutil
+    shutil.copytree(REPO / "results" / "reference", tmp_path / "ref")
+    for argv in (["maniskill_dualher.report", str(tmp_path / "ref")],
+                 ["maniskill_dualher.sweep", "--preset", "smoke", "--out", str(tmp_path / "sweep")]):
+        p = subprocess.run([sys.executable, "-m", *argv], cwd=tmp_path, env=env, capture_output=True, text=True)
+        err = p.stderr.strip().splitlines()
+        assert p.returncode == 2 and len(err) == 1, p.stderr[-2000:]
+        assert err[0].startswith("error: ") and "matplotlib" in err[0] and "pip install 'matplotlib" in err[0]
+    assert not (tmp_path / "sweep").exists()

@@ -25,7 +25,7 @@ REPO = Path(__file__).resolve().parents[1]
 TABLES = ["claims.csv", "table5_multitask.csv", "scores.csv"]
 # one 3-stage chain (source stages 300 steps, adaptation 180), checkpoints every 50 steps
 CHAIN = ["--preset", "smoke", "--experiments", "transfer", "--methods", "sac_her_per", "--seeds", "1,",
-         "--steps", "300"]
+         "--source-steps", "300"]
 
 
 def _env():

@@ -447,7 +447,13 @@ def test_run_transfer_chains_networks_and_replay(tmp_path):
     (["--ray-address", "auto"], "--backend ray"),
     (["--preset", "Quick"], "invalid choice: 'Quick' (choose from 'smoke', 'quick'"),
     (["--source-steps", "0"], "--source-steps must be >= 1, got 0"),
-    (["--steps", "-5"], "--source-steps must be >= 1, got -5"),  # the old name, same check
+    (["--steps", "300"], "--steps is not a flag here: the single-task and source-stage budget is --source-steps N"),
+    (["--methods", "dual_bufer"], "unknown method 'dual_bufer' (choose from sac, sac_her_per, dual_buffer) "
+                                  "(did you mean dual_buffer?)"),
+    (["--tasks", "ClosBox-v1"], "(did you mean CloseBox-v1?)"),
+    (["--preset", "quik"], "(did you mean quick?)"),
+    (["--set", "sac.gama=0.9"], "unknown setting 'sac.gama' (did you mean sac.gamma?)"),
+    (["--sourcesteps", "300"], "unrecognized arguments: --sourcesteps 300 (did you mean --source-steps?)"),
     (["--source-steps", "ten"], "'ten'"),
     (["--adapt-steps", "0"], "--adapt-steps must be >= 1"),
     (["--seeds", ","], "--seeds must list distinct seeds"),
@@ -504,26 +510,30 @@ def test_help_names_presets_budgets_and_the_one_seed_list(capsys):
     assert e.value.code == 0
     text = " ".join(capsys.readouterr().out.split())  # argparse wraps lines
     assert f"one of {', '.join(PRESETS)}" in text
-    assert "--source-steps N, --steps N" in text and "--adapt-steps N" in text
+    assert "--source-steps N" in text and "--adapt-steps N" in text and "--steps" not in text.replace(
+        "--source-steps", "").replace("--adapt-steps", "").replace("--total-steps", "")
     assert "'7,' is seed 7 ('7' is seeds 0-6)" in text
 
 
-def test_steps_is_the_old_name_of_source_steps(tmp_path, capsys):
-    """--steps and --source-steps plan the same runs; the adaptation gets 120/200 unless --adapt-steps."""
-    outs = []
-    for flag in ("--steps", "--source-steps"):
-        assert run_sweep(["--preset", "smoke", "--experiments", "transfer", "--seeds", "1", flag, "300",
-                          "--dry-run", "--out", str(tmp_path / "o")]) == 0
-        outs.append(capsys.readouterr().out)
-    assert outs[0] == outs[1]
-    last = outs[0].strip().splitlines()[-1]
+def test_source_steps_and_adapt_steps_budgets(tmp_path, capsys):
+    """--source-steps sets single-task runs and source stages; the adaptation gets 120/200 unless --adapt-steps.
+    --steps (train's whole run in issue 31's days, here the source stages) is no flag: one line names the new."""
+    assert run_sweep(["--preset", "smoke", "--experiments", "transfer", "--seeds", "1", "--source-steps", "300",
+                      "--dry-run", "--out", str(tmp_path / "o")]) == 0
+    last = capsys.readouterr().out.strip().splitlines()[-1]
     # transfer: 2 methods x (2 source stages of 300 + an adaptation of 180)
     assert last == "6 runs; 1560 env steps to go; nothing written (--dry-run)", last
-    a = sweep.make_parser().parse_args(["--steps", "300", "--adapt-steps", "50"])
+    a = sweep.make_parser().parse_args(["--source-steps", "300", "--adapt-steps", "50"])
     d = sweep.definition_from_args(a)
     assert set(d["budgets"]["source"].values()) == {300} and set(d["budgets"]["single"].values()) == {300}
     assert set(d["budgets"]["adapt"].values()) == {50}
     assert sweep.parse_seeds("7,") == (7,) and sweep.parse_seeds("7") == tuple(range(7))
+    for old in (["--steps", "300"], ["--steps=300"]):
+        with pytest.raises(SystemExit) as e:
+            sweep.make_parser().parse_args(old)
+        assert e.value.code == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "--source-steps N" in err[0] and "--adapt-steps N" in err[0], err
 
 
 def test_eta_within_25_percent_of_measured_wall_times():
@@ -678,7 +688,7 @@ def test_readme_first_command_on_a_fresh_copy_writes_outside_the_reference(tmp_p
     before = {p: p.read_bytes() for p in (repo / "results").rglob("*") if p.is_file()}
     env = _env()
     env["PYTHONPATH"] = str(repo)
-    r = subprocess.run([sys.executable, "-m", "maniskill_dualher.sweep", *argv, "--steps", "60",
+    r = subprocess.run([sys.executable, "-m", "maniskill_dualher.sweep", *argv, "--source-steps", "60",
                         "--set", "eval_every=30", "--set", "eval_episodes=1", "--set", "sac.random_steps=20",
                         "--set", "sac.learning_starts=20"], cwd=repo, env=env, capture_output=True, text=True,
                        timeout=600)

@@ -138,19 +138,69 @@ def cli(*args):
     (["--update-schedule", "weekly"], "weekly"),
     (["--success-buffer", "some"], "some"),
     (["--method", "sac_her_per", "--reward-mode", "dense"], "dense"),
-    (["--env", "CloseBox-v1", "--num-envs", "2"], "num_envs=2"),
+    (["--env", "CloseBox-v1", "--num-envs", "2"], "--num-envs=2 needs --sim-backend"),
     (["--hidden", "0"], "hidden"),
     (["--batch-size", "x"], "'x'"),
     (["--no-such-flag"], "--no-such-flag"),
 ])
 def test_cli_bad_input_is_one_line(tmp_path, args, needle):
     out = tmp_path / "run"
-    r = cli("--out", str(out), "--steps", "50", *args)
+    r = cli("--out", str(out), "--total-steps", "50", *args)
     assert r.returncode == 2, r.stderr
     err = r.stderr.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("error:") and needle in err[0], r.stderr
     assert "Traceback" not in r.stderr
     assert not out.exists()
+
+
+@pytest.mark.parametrize("args, needle", [
+    # one meaning per word (issue 43): flags named as typed, old spellings and typos answered with the flag meant
+    (["--total-steps", "0"], "--total-steps must be > 0, got 0"),
+    (["--set", "total_steps=0"], "total_steps must be > 0"),  # given as a --set key: named as typed
+    (["--eval-every", "0"], "--eval-every, --eval-episodes and --checkpoint-every must be >= 1"),
+    (["--steps", "50"], "--steps is not a flag here: the whole run is --total-steps N"),
+    (["--method", "dual_bufer"], "(choose from 'sac', 'sac_her_per', 'dual_buffer') (did you mean dual_buffer?)"),
+    (["--variant", "modrn"], "(did you mean modern?)"),
+    (["--task", "ClosBox-v1"], "--task: unknown environment 'ClosBox-v1' (did you mean CloseBox-v1?)"),
+    (["--totl-steps", "5"], "unrecognized arguments: --totl-steps 5 (did you mean --total-steps?)"),
+    (["--set", "sac.gama=0.9"], "unknown setting 'sac.gama' (did you mean sac.gamma?)"),
+    (["--set", "replay.her_kk=3"], "(did you mean replay.her_k?)"),
+])
+def test_cli_names_the_flag_typed_and_the_one_meant(tmp_path, capsys, args, needle):
+    """The same one-line answers as above, in process (train.main; argparse's own errors exit 2)."""
+    from maniskill_dualher.train import main as train_main
+    out = tmp_path / "run"
+    try:
+        rc = train_main(["--out", str(out), "--total-steps", "50", *args])
+    except SystemExit as e:
+        rc = e.code
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and err[0].startswith("error:") and needle in err[0], err
+    assert not out.exists()
+
+
+def test_train_without_a_preset_says_which_settings_it_uses(tmp_path):
+    """No --preset (and no --config): the paper's Table 3 defaults, said in one line at the run's start with how to
+    get settings that learn; with a preset, nothing is said."""
+    from maniskill_dualher.cli import NO_PRESET_NOTE
+    tiny_run = ("--total-steps", "40", "--eval-every", "40", "--eval-episodes", "1", "--no-progress")
+    r = cli("--out", str(tmp_path / "plain"), *tiny_run)
+    assert r.returncode == 0, r.stderr
+    notes = [ln for ln in r.stderr.splitlines() if ln.startswith("note:")]
+    assert notes == [NO_PRESET_NOTE] and "Table 3" in notes[0] and "--preset quick" in notes[0]
+    r = cli("--out", str(tmp_path / "quick"), "--preset", "quick", *tiny_run)
+    assert r.returncode == 0, r.stderr
+    assert not [ln for ln in r.stderr.splitlines() if ln.startswith("note:")]
+
+
+def test_train_help_lists_the_methods_and_no_steps_flag():
+    """--method lists the registry's methods; the whole run is --total-steps (no --steps: sweep's budgets are
+    --source-steps and --adapt-steps)."""
+    from maniskill_dualher.methods import METHOD_SPECS
+    from maniskill_dualher.train import build_parser
+    text = " ".join(build_parser().format_help().split())
+    assert "--method {" + ",".join(METHOD_SPECS) + "}" in text
+    assert "--total-steps TOTAL_STEPS" in text and "--steps" not in text.replace("--total-steps", "")
 
 
 def test_cli_broken_config_file(tmp_path):
@@ -227,7 +277,7 @@ def test_train_preset_and_set_use_the_one_parser():
     want = PRESETS["quick"].single_config("dual_buffer", 3, "CloseMicrowave-v1")
     want.sac.lr = 3e-4
     assert cfg == want and cfg.total_steps == 16_000 and cfg.sac.hidden == (64, 64)
-    assert parse("--preset", "quick", "--steps", "500").total_steps == 500
+    assert parse("--preset", "quick", "--total-steps", "500").total_steps == 500
     paper = parse()
     assert (paper.sac.lr, paper.sac.gamma, paper.sac.variant) == (1e-4, 0.99, "paper")
     assert parse("--set", "replay.ratio=1/0", "--set", "eval_at_start=true").replay.ratio == (1.0, 0.0)

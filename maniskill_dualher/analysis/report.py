@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Dict, List, Optional, Sequence
 
 from .. import rundir
-from ..cmdline import OneLineParser
+from ..cmdline import OneLineParser, missing_package
 from ..config import ConfigError
 from ..experiment import registry  # plain data: no torch, no simulator
 from ..fileio import atomic_write_text, csv_text, fmt
@@ -369,6 +369,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     p.add_argument("--resamples", type=int, default=10_000, help="bootstrap resamples (default: %(default)s)")
     a = p.parse_args(argv)
     try:
+        need = missing_package("matplotlib", "report draws its figures with")
+        if need:
+            raise ConfigError(need)
         if a.resamples < 100:
             raise ConfigError(f"--resamples must be >= 100, got {a.resamples}")
         done = report(Path(a.folder), a.resamples, Path(a.reference) if a.reference else None,

@@ -16,6 +16,7 @@ import typing
 from dataclasses import dataclass
 from typing import Any, Dict, Iterable, List, Optional, Sequence, Tuple
 
+from ..cmdline import closest
 from ..config import ConfigError, ReplayConfig, RunConfig, SACConfig, field_docs, format_ratio, parse_ratio
 
 SECTIONS = {"sac": SACConfig, "replay": ReplayConfig}
@@ -81,7 +82,10 @@ def _resolve(path: str):
         cls, name, section = None, None, None
     fields = _fields(cls) if cls else {}
     if name not in fields or name in SECTIONS:
-        close = [k for k in keys() if k.split(".")[-1] == parts[-1]]
+        close = [k for k in keys() if k.split(".")[-1] == parts[-1]]  # the right name in the wrong section
+        section = {k.rpartition(".")[2]: k for k in keys() if k.rpartition(".")[0] == ".".join(parts[:-1])}
+        close = close or [section[n] for n in [closest(parts[-1], section)] if n] \
+            or [k for k in [closest(path, keys(), cutoff=0.8)] if k]   # a typo in the name, or in the section
         hint = f" (did you mean {close[0]}?)" if close else " (see --help for the keys)"
         raise ConfigError(f"unknown setting {path!r}{hint}")
     return fields[name][0], name, section

@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Callable, List, Optional, Sequence, Tuple
 
 from .. import rundir
-from ..cmdline import OneLineParser
+from ..cmdline import OneLineParser, did_you_mean, missing_package, old_flag
 from ..config import TASKS, ConfigError
 from ..methods import METHOD_SPECS
 from ..rundir import RUNS_DIR, SWEEP
@@ -61,7 +61,7 @@ def _pick(text: str, allowed: Sequence[str], what: str) -> List[str]:
     items = _split(text)
     for x in items:
         if x not in allowed:
-            raise ConfigError(f"unknown {what} {x!r} (choose from {', '.join(allowed)})")
+            raise ConfigError(f"unknown {what} {x!r} (choose from {', '.join(allowed)}){did_you_mean(x, allowed)}")
     if not items:
         raise ConfigError(f"no {what} given")
     return items
@@ -219,10 +219,12 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--task-order", default=",".join(PAPER_CHAIN),
                    help="the transfer chain, tasks of the catalog (config.TASKS); the last task is the adaptation "
                         "target (default: the paper's chain, registry.PAPER_CHAIN: %(default)s)")
-    p.add_argument("--source-steps", "--steps", dest="source_steps", type=int, metavar="N",
+    p.add_argument("--source-steps", dest="source_steps", type=int, metavar="N",
                    help="env steps of every single-task run and every source (not last) stage of a chain; the "
                         "adaptation (last) stage gets 120/200 of it, as in the paper, unless --adapt-steps. "
-                        "Not train's --total-steps: a chain's total is the sum of its stages (--steps: old name)")
+                        "Not train's --total-steps: a chain's total is the sum of its stages")
+    old_flag(p, "--steps", "the single-task and source-stage budget is --source-steps N, the adaptation's "
+                           "--adapt-steps N (train's whole run: --total-steps)")
     p.add_argument("--adapt-steps", type=int, metavar="N",
                    help="env steps of the adaptation (last) stage of a chain, and of scratch runs")
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
@@ -327,6 +329,10 @@ def _main(argv: Optional[Sequence[str]], held, train: Optional[Callable], report
                 import ray  # noqa: F401
             except ImportError:
                 raise ConfigError("--backend ray needs Ray: pip install 'ray[default]'") from None
+        if not (a.no_report or a.dry_run or a.emit_commands) and report is not None:  # its end, before hours
+            need = missing_package("matplotlib", "the report at the end (--no-report skips it) draws its figures with")
+            if need:
+                raise ConfigError(need)
         if a.pack < 1:
             raise ConfigError(f"--pack must be >= 1, got {a.pack}")
         if a.retries < 0:
