@@ -11,7 +11,8 @@ from maniskill_dualher.analysis.runs import read_rows
 
 REPO = Path(__file__).resolve().parents[1]
 INTERVAL = re.compile(r"(−?-?\d+(?:\.\d+)?)x? \[(−?-?\d+(?:\.\d+)?), (−?-?\d+(?:\.\d+)?)\]")
-CITE = re.compile(r"`([a-z_']+)`(†?)")
+CITE = re.compile(r"`([a-z_']+)`(†?)(‡?)")
+REPLICATION = re.compile(r": ([+−-]?\d+(?:\.\d+)?) \[([+−-]?\d+(?:\.\d+)?), ([+−-]?\d+(?:\.\d+)?)\]")
 
 
 def _claims():
@@ -44,6 +45,12 @@ def _matches(shown: str, value: str) -> bool:
     return abs(abs(_float(shown)) - abs(float(value))) <= 0.5 * 10 ** -_decimals(shown) + 1e-9
 
 
+def _replication_of(claim: dict, point: str, lo: str, hi: str) -> bool:
+    """The interval of a post-hoc claim's replication (claims.csv ``replication``: "seeds a-b (...): d [lo, hi] ...")."""
+    m = REPLICATION.search(claim.get("replication") or "")
+    return bool(m) and all(_matches(x, y) for x, y in zip((point, lo, hi), m.groups()))
+
+
 def _interval_of(claim: dict, point: str, lo: str, hi: str) -> bool:
     for mid, low, high in (("diff", "diff_ci95_low", "diff_ci95_high"),
                            ("ratio", "ratio_ci95_low", "ratio_ci95_high")):
@@ -61,7 +68,11 @@ def _check(paragraph: str, claims: dict, every_sentence_cites: bool):
     for sentence in _sentences(paragraph):
         if sentence.startswith("**"):
             continue  # the paragraph's bold lead and legend
-        cites = [(c, dagger) for c, dagger in CITE.findall(sentence) if c in claims]
+        cites = [(c, dagger) for c, dagger, _ in CITE.findall(sentence) if c in claims]
+        for c, _, post in CITE.findall(sentence):
+            if c in claims:
+                assert bool(post) == bool(claims[c].get("post_hoc")), (
+                    f"{c}: ‡ marks exactly the claims defined after their data (claims.csv post_hoc): {sentence!r}")
         if every_sentence_cites:
             assert cites, f"a Why sentence cites no claim: {sentence!r}"
         for claim, dagger in cites:
@@ -73,7 +84,8 @@ def _check(paragraph: str, claims: dict, every_sentence_cites: bool):
                 assert not dagger, f"{claim} survives Holm or is undecided, no dagger: {sentence!r}"
             cited_anywhere.add(claim)
         for point, lo, hi in INTERVAL.findall(sentence):
-            assert any(_interval_of(claims[c], point, lo, hi) for c, _ in cites), (
+            assert any(_interval_of(claims[c], point, lo, hi) or _replication_of(claims[c], point, lo, hi)
+                       for c, _ in cites), (
                 f"{point} [{lo}, {hi}] is no cited claim's interval in {sentence!r}")
     return cited_anywhere
 
@@ -101,3 +113,19 @@ def test_the_checker_rejects_a_drifted_number():
         except AssertionError:
             continue
         raise AssertionError(f"accepted {bad!r}")
+
+
+def test_every_post_hoc_claim_is_marked_and_its_replication_reported():
+    """Issue 39: a claim defined after its data is cited with ‡ and the sentence gives its replication (the claim
+    on the seeds run after its definition) or says that all its paired seeds were run after it."""
+    claims = _claims()
+    why = _sentences(_section("Why"))
+    post = [k for k, r in claims.items() if r.get("post_hoc") and r.get("n_a")]
+    assert post
+    for key in post:
+        said = [x for x in why if f"`{key}`" in x]
+        assert said, f"post-hoc claim {key} is not in the Why"
+        assert any("‡" in x.split(f"`{key}`", 1)[1][:3] for x in said)
+        m = REPLICATION.search(claims[key]["replication"])
+        assert m, claims[key]["replication"]
+        assert any(m.group(1).lstrip("+") in x or "run after its definition" in x for x in said), key

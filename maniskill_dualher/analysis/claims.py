@@ -2,9 +2,8 @@
 
 A side names its cell explicitly: experiment, arm, method, task and role (``runs.CELL_KEYS``); its values
 are one score per seed from ``scores.csv``. ``claim_rows`` decides each claim with ``stats.compare``, then
-adjusts the p-values within each family (``group``: the paper's claims, the ablations) by Holm and by
-Benjamini-Hochberg; ``survives_holm`` says whether a decided verdict still holds after Holm. The budget
-trend (``budget.trend``) is one more ablation claim.
+adjusts the p-values within each family (``group``, ``FAMILIES``) by Holm and by Benjamini-Hochberg;
+``survives_holm`` says whether a decided verdict still holds after Holm.
 
 Add a claim: one ``Claim(...)`` in ``CLAIMS``; it is "not measured" until a sweep runs both sides.
 """
@@ -18,7 +17,7 @@ from typing import Dict, List, Optional, Sequence, Tuple
 import numpy as np
 
 from ..config import TASKS
-from . import budget, stats
+from . import stats
 from .paper import PAPER_TARGET
 
 RATE_MARGIN = 0.1      # success rates and sparse returns per episode (in [0, 1]): 10 percentage points
@@ -279,13 +278,6 @@ CLAIMS: List[Claim] = [
           ("curve", S, "mean evaluation success over the curve", "Fig. 5: dual buffer's curve above"))],
 ]
 
-TREND = Claim("budget_trend", "the dual buffer's count relative to sac_her_per's rises with the adaptation budget "
-                              "(A: dual/HER ratio of mean successful episodes at the largest budget, B: at 1x; "
-                              "A - B column: slope of log2 ratio per doubling of the budget over every budget "
-                              "measured, 1x-8x)", "", N, Side("budget", "x8", DUAL), Side("budget", "x8", HER),
-               group="ablation", explains="per doubling of the adaptation budget, log2 of the dual/HER count "
-                                          "ratio changes by")
-
 CLAIM_COLUMNS = ["claim", "group", "statement", "paper", "metric", "side_a", "side_b", "n_a", "n_b", "mean_a",
                  "mean_b", "diff", "diff_ci95_low", "diff_ci95_high", "welch_ci95_low", "welch_ci95_high",
                  "prob_improvement", "margin", "verdict", "seeds_to_decide", "paired", "p_value", "p_holm", "p_bh",
@@ -450,34 +442,6 @@ def replication(scores, c: Claim, resamples: int) -> str:
             f"{row['verdict']}")
 
 
-def trend_row(scores, resamples: int) -> dict:
-    """The budget-trend claim as a claims.csv row (``budget.trend``; columns as the module doc of budget.py)."""
-    c = TREND
-    row = {"claim": c.key, "group": c.group, "statement": c.text, "paper": c.paper, "metric": c.metric,
-           "side_a": "dual_buffer/sac_her_per at the largest budget", "side_b": "dual_buffer/sac_her_per at 1x"}
-    t = budget.trend(scores, resamples)
-    if t is None:
-        have = [f"{f:g}x" for f, cells in budget.budgets()
-                if min(len(budget.budget_values(scores, cells, m, budget.COUNT)) for m in (DUAL, HER))
-                >= stats.MIN_SEEDS]
-        return {**row, "verdict": f"not measured (needs >= {budget.MIN_BUDGETS} budgets with >= {stats.MIN_SEEDS} "
-                                  f"seeds per method; have {', '.join(have) or 'none'})"}
-    if not t["slope"] == t["slope"]:
-        verdict = "inconclusive (a budget without successful episodes: no ratio)"
-    else:
-        verdict = ("supported" if t["low"] > 0 else "contradicted" if t["high"] < 0 else
-                   "inconclusive (the slope's interval includes 0)")
-    budgets = ", ".join(f"{f:g}x" for f in t["budgets"])
-    cells = {cell for f, cs in budget.budgets() if f in t["budgets"] for cell in cs}
-    used = [r for r in scores if (r["experiment"], r["arm"]) in cells and r["role"] == "adapt"
-            and r["metric"] == budget.COUNT and r["method"] in (DUAL, HER)]
-    row["machines"] = "; ".join(sorted(_machines(used)))
-    return {**row, "side_a": f"dual_buffer/sac_her_per at {t['budgets'][-1]:g}x (budgets {budgets})",
-            "n_a": t["n_dual"], "n_b": t["n_her"], "mean_a": t["ratio_last"], "mean_b": t["ratio_first"],
-            "diff": t["slope"], "diff_ci95_low": t["low"], "diff_ci95_high": t["high"], "verdict": verdict,
-            "paired": "no", "p_value": t["p_value"]}
-
-
 def _adjust(rows: List[dict]) -> None:
     """Holm and Benjamini-Hochberg within each family, and whether each decided verdict survives Holm:
     a direction verdict if its Holm-adjusted p < ALPHA; an equivalence verdict if its own test's p times
@@ -497,8 +461,8 @@ def _adjust(rows: List[dict]) -> None:
 
 def claim_rows(scores: Sequence[Dict[str, str]], resamples: int = 10_000,
                claims: Optional[Sequence[Claim]] = None) -> List[dict]:
-    # The budget trend (TREND, trend_row) is not a claim here: at these settings both methods have solved the
-    # task by 4x, so the count measures speed, not success, and 2x/4x carry 6 seeds (issue 39).
+    # No budget-trend claim (issue 39): at these settings both methods solve the task by 4x, so the count measures
+    # speed, not success, and 2x/4x carry 6 seeds; budget.csv and Fig. 8 describe the curve.
     rows = [_claim_row(scores, c, resamples) for c in (CLAIMS if claims is None else claims)]
     _adjust(rows)
     return rows
@@ -509,4 +473,4 @@ def decided(row: dict) -> bool:
 
 
 def explains(key: str) -> str:
-    return next((c.explains for c in CLAIMS + [TREND] if c.key == key), "")
+    return next((c.explains for c in CLAIMS if c.key == key), "")

@@ -97,9 +97,9 @@ def summary_md(name: str, sweep: Optional[dict], scores, tables, claims, figures
              "directions, not absolute counts.")
     if sweep.get("settings"):
         s.append(f"Settings given to this sweep: `{' '.join(sweep['settings'])}`.")
-    for m in sweep.get("merged", []):
-        s.append(f"Merged in (`report --merge`): {m['runs']} runs of the sweep `{m['folder']}` "
-                 f"(experiments {', '.join(m['experiments'])}; run names prefixed `{m['folder']}/`).")
+    merged = sweep.get("merged", [])
+    if merged:
+        s.append(f"{len(merged)} sweeps merged in (listed at the end).")
     machines: Dict[str, set] = {}
     for r in scores:
         machines.setdefault(r.get("machine") or "unknown", set()).add(r["experiment"])
@@ -174,6 +174,10 @@ def summary_md(name: str, sweep: Optional[dict], scores, tables, claims, figures
             s += [f"## {title} (`{name}`)", "", md_table(tables[name], cols)]
     s += ["## Metrics", ""] + [f"- `{m}`: {doc}" for m, (_, doc) in METRICS.items()] + [""]
     s += ["## Figures", ""] + [f"![{f}]({f})" for f in figures] + [""]
+    if merged:  # where the rows came from, after the results
+        s += ["## Sweeps merged in (`report --merge`)", ""] + [
+            f"- {m['runs']} runs of the sweep `{m['folder']}` (experiments {', '.join(m['experiments'])}; run names "
+            f"prefixed `{m['folder']}/`)." for m in merged] + [""]
     if unfinished:
         s += ["## Unfinished runs (not counted)", ""] + [f"- {u}" for u in unfinished] + [""]
     return "\n".join(s)
