@@ -90,6 +90,8 @@ def digest_run(run: Path, root: Path) -> dict:
     keep = [i for i, k in enumerate(head) if k != "wall_time_s"]
     lines = [",".join(r.split(",")[i] for i in keep) for r in lines]
     metrics = "\n".join(lines)
+    # weights_only=False on purpose: golden digests compare against older trees, whose checkpoints held numpy
+    # arrays; these are files this script's own runs just wrote in a temporary folder, never shared ones
     state = torch.load(run / "checkpoint.pt", map_location="cpu", weights_only=False)
     policy = torch.load(run / "policy.pt", map_location="cpu", weights_only=False)
     return {"folder": str(run.relative_to(root)), "metrics_sha": hashlib.sha256(metrics.encode()).hexdigest(),

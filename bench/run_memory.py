@@ -140,7 +140,7 @@ def measure_run(tree: Path, task: str, method: str, steps: int, preset: str) -> 
     peak_in = max(last["hwm_after"] - last["hwm_before"], 0)
     return {
         "command": "python -m maniskill_dualher.train " + " ".join(argv[:-3] + ["--out", "TMP", "--no-progress"]),
-        "tree": str(tree), "commit": _git_short(tree), "wall_s": round(out["wall_s"], 1),
+        "tree": "." if tree == HERE.parent else f"<a clone of {_git_short(tree)}>", "commit": _git_short(tree), "wall_s": round(out["wall_s"], 1),
         "rows_stored": rows, "rows_per_buffer": last["rows"],
         "rss_at_loop_start_bytes": out["start"].get("rss"),
         "rss_before_final_checkpoint_bytes": last["rss_before"],

@@ -178,7 +178,7 @@ run_training(cfg, out, show_progress=False)
 lines = (out / "metrics.csv").read_text().splitlines()
 head = lines[0].split(",")
 rows = [dict(zip(head, l.split(","))) for l in lines[1:]]
-state = torch.load(out / "checkpoint.pt", map_location="cpu", weights_only=False)
+state = torch.load(out / "checkpoint.pt", map_location="cpu", weights_only=True)
 def digest(x, h, key=""):
     if isinstance(x, torch.Tensor):
         h.update(key.encode()); h.update(x.detach().contiguous().numpy().tobytes())
@@ -192,7 +192,7 @@ def digest(x, h, key=""):
         h.update(f"{key}={x!r}".encode())
     return h
 h = digest(state["agent"], hashlib.sha256())
-policy = torch.load(out / "policy.pt", map_location="cpu", weights_only=False)
+policy = torch.load(out / "policy.pt", map_location="cpu", weights_only=True)
 actor = digest(policy["actor"], hashlib.sha256()).hexdigest()
 print(json.dumps({"rows": rows, "agent": h.hexdigest(), "actor": actor,
                   "updates": state["counters"]["updates"]}))

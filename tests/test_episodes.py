@@ -168,7 +168,7 @@ def test_a_nan_loss_stops_the_run_keeping_the_last_good_checkpoint(tmp_path):
         run_one(t)
     t.env.close()
     assert "\n" not in str(e.value) and "last good checkpoint" in str(e.value)
-    state = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=False)
+    state = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=True)
     assert 100 <= state["counters"]["env_steps"] <= 260
     assert not (tmp_path / "run" / "done.json").exists()
 

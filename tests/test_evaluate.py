@@ -85,8 +85,8 @@ def test_policy_files_at_every_evaluation_and_the_best_kept_across_resume(tmp_pa
     assert [s // 100 for s in steps] == [1, 2, 3, 4, 5, 6]
     assert [s for name, s in saved if name == "policy.pt"] == steps  # every evaluation
     assert [s for name, s in saved if name == "policy_best.pt"] == [steps[0], steps[1], steps[2]]  # ties keep the earlier
-    best = torch.load(tmp_path / "straight" / "policy_best.pt", weights_only=False)
-    last = torch.load(tmp_path / "straight" / "policy.pt", weights_only=False)
+    best = torch.load(tmp_path / "straight" / "policy_best.pt", weights_only=True)
+    last = torch.load(tmp_path / "straight" / "policy.pt", weights_only=True)
     assert (best["env_steps"], best["eval_success"]) == (steps[2], 1.0)
     assert (last["env_steps"], last["eval_success"]) == (steps[5], pytest.approx(2 / 3))
 
@@ -95,7 +95,7 @@ def test_policy_files_at_every_evaluation_and_the_best_kept_across_resume(tmp_pa
     saved.clear()
     run_training(point_cfg(), tmp_path / "resumed", show_progress=False)
     assert not [s for name, s in saved if name == "policy_best.pt"]  # the tie at eval 5 did not replace it
-    again = torch.load(tmp_path / "resumed" / "policy_best.pt", weights_only=False)
+    again = torch.load(tmp_path / "resumed" / "policy_best.pt", weights_only=True)
     assert (again["env_steps"], again["eval_success"]) == (steps[2], 1.0)
     starts = json.loads((tmp_path / "resumed" / "provenance.json").read_text())["starts"]
     assert len(starts) == 2  # one per process start
@@ -104,12 +104,12 @@ def test_policy_files_at_every_evaluation_and_the_best_kept_across_resume(tmp_pa
 def test_old_checkpoint_without_best_counter_resumes(tmp_path, monkeypatch):
     monkeypatch.setattr(Trainer, "evaluate", scripted_evaluate)
     run_training(point_cfg(), tmp_path / "r", show_progress=False, stop_at=350)
-    state = torch.load(tmp_path / "r" / "checkpoint.pt", weights_only=False)
+    state = torch.load(tmp_path / "r" / "checkpoint.pt", weights_only=True)
     del state["counters"]["best_eval_success"]
     torch.save(state, tmp_path / "r" / "checkpoint.pt")
     (tmp_path / "r" / "policy_best.pt").unlink()
     run_training(point_cfg(), tmp_path / "r", show_progress=False)
-    best = torch.load(tmp_path / "r" / "policy_best.pt", weights_only=False)
+    best = torch.load(tmp_path / "r" / "policy_best.pt", weights_only=True)
     assert best["eval_success"] == 1.0 and best["env_steps"] // 100 == 5  # first 1.0 after the resume
 
 

@@ -97,7 +97,7 @@ def _rows(run: Path):
 
 
 def _weights(run: Path) -> str:
-    nets = torch.load(run / "checkpoint.pt", weights_only=False)["agent"]["networks"]
+    nets = torch.load(run / "checkpoint.pt", weights_only=True)["agent"]["networks"]
     return hashlib.sha1(b"".join(v.numpy().tobytes() for v in nets.values())).hexdigest()
 
 

@@ -94,7 +94,7 @@ def test_a_run_resumes_under_another_update_implementation(tmp_path):
 def test_transfer_init_from_loads_networks(tmp_path):
     import torch
     run_training(tiny(steps=100), tmp_path / "src", show_progress=False, keep_replay=True)
-    src = torch.load(tmp_path / "src" / "checkpoint.pt", weights_only=False)["agent"]["networks"]
+    src = torch.load(tmp_path / "src" / "checkpoint.pt", weights_only=True)["agent"]["networks"]
     from maniskill_dualher.train import Trainer
     t = Trainer(tiny(env_id="CloseMicrowave-v1", steps=100), tmp_path / "dst", init_from=tmp_path / "src",
                 carry_replay=True, show_progress=False)
@@ -109,7 +109,7 @@ def test_finished_run_drops_its_replay_unless_kept(tmp_path):
     import torch
     from maniskill_dualher.train import Trainer
     run_training(tiny(steps=100), tmp_path / "src", show_progress=False)
-    state = torch.load(tmp_path / "src" / "checkpoint.pt", weights_only=False)
+    state = torch.load(tmp_path / "src" / "checkpoint.pt", weights_only=True)
     assert state["method"] is None and state["agent"]["networks"]
     with pytest.raises(ConfigError, match="no replay"):
         Trainer(tiny(env_id="CloseMicrowave-v1", steps=100), tmp_path / "dst", init_from=tmp_path / "src",
@@ -394,7 +394,7 @@ def test_a_run_killed_mid_way_resumes_bit_identically(tmp_path):
     a, b = read_rows(tmp_path / "a" / "metrics.csv"), read_rows(tmp_path / "b" / "metrics.csv")
     assert len(a) == 10 and a == b
     assert json.loads((tmp_path / "b" / "done.json").read_text())["final"]["env_steps"] == straight["env_steps"]
-    wa, wb = (torch.load(tmp_path / d / "policy.pt", weights_only=False)["actor"] for d in "ab")
+    wa, wb = (torch.load(tmp_path / d / "policy.pt", weights_only=True)["actor"] for d in "ab")
     assert wa.keys() == wb.keys() and all(torch.equal(wa[k], wb[k]) for k in wa)
     starts = json.loads((tmp_path / "b" / "provenance.json").read_text())["starts"]
     assert len(starts) == 2                                        # two processes: the killed one, the resume
