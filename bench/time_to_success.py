@@ -94,6 +94,9 @@ def our_config(task: str, seed: int, args, fixed_length: bool = False):
     peers' own convention; evaluation unchanged)."""
     from maniskill_dualher.experiment.presets import PRESETS
     cfg = PRESETS[args.preset].single_config("sac_her_per", seed, task)
+    if getattr(args, "overrides", ()):
+        from maniskill_dualher.experiment import overrides
+        cfg = overrides.apply(cfg, args.overrides)
     if fixed_length:
         cfg.terminate_on_success = False
     cfg.total_steps = args.max_steps
@@ -119,6 +122,31 @@ def episode_rules(task: str, args) -> dict:
         env.close()
     return dict(max_episode_steps=T, terminate_on_success=bool(getattr(cfg, "terminate_on_success", False)),
                 control_mode=cfg.control_mode, reward_mode=cfg.reward_mode, eval_seeds=seeds, init_obs=init)
+
+
+def shared_settings(cfg) -> dict:
+    """The settings table every contender is compared under: ours' value and the peers' (rl-zoo) value per
+    setting, so a reader sees at once what is equal and what is not."""
+    s, r = cfg.sac, cfg.replay
+    ours = {"network": list(s.hidden), "lr": s.lr, "batch": s.batch_size, "gamma": s.gamma, "tau": s.tau,
+            "buffer": r.capacity, "learning_starts": s.learning_starts, "random_steps": s.random_steps,
+            "train_freq (updates per env step)": s.updates_per_step,
+            "temperature": f"{'learned' if s.resolved_learn_alpha() else 'fixed'}, starts {s.alpha:g}",
+            "replay sampling": (f"prioritized, exponent {r.priority_exponent:g}, IS weights {r.is_weights}"
+                                if r.priority_exponent > 0 else "uniform"),
+            "HER": f"{r.her_strategy}, {r.her_k} goals stored per transition"}
+    peers = {"network": ZOO["net_arch"], "lr": ZOO["learning_rate"], "batch": ZOO["batch_size"],
+             "gamma": ZOO["gamma"], "tau": ZOO["tau"], "buffer": ZOO["buffer_size"],
+             "learning_starts": ZOO["learning_starts"], "random_steps": ZOO["learning_starts"],
+             "train_freq (updates per env step)": ZOO["train_freq"] * ZOO["gradient_steps"],
+             "temperature": "learned, starts 1", "replay sampling": "uniform",
+             "HER": f"future, {ZOO['n_sampled_goal']} goals per sampled transition, drawn at sampling time"}
+    def same(a, b):
+        try:
+            return float(a) == float(b)
+        except (TypeError, ValueError):
+            return str(a) == str(b)
+    return {k: {"ours": ours[k], "peers": peers[k], "equal": same(ours[k], peers[k])} for k in ours}
 
 
 def describe_ours(cfg) -> str:
@@ -216,6 +244,27 @@ def _stats(xs):
     return {"median": float(np.median(vals)), "min": float(vals[0]), "max": float(vals[-1]), "n": len(vals)}
 
 
+BOOT = 10_000  # bootstrap resamples for the ratio of medians
+
+
+def ratio_interval(peer_vals, ours_vals, level: float = 0.95, seed: int = 0):
+    """Percentile bootstrap interval of median(peer) / median(ours): each contender's seeds resampled on
+    their own (the runs are independent, not paired). A run that did not reach is infinite: a resample whose
+    ours-median is infinite gives a ratio of 0, whose peer-median is infinite gives infinity (both ends kept,
+    so a censored side shows as an open end). None if either side has no runs."""
+    p, o = np.asarray(peer_vals, float), np.asarray(ours_vals, float)
+    if p.size == 0 or o.size == 0:
+        return None
+    rng = np.random.default_rng(seed)
+    mp = np.median(p[rng.integers(0, p.size, (BOOT, p.size))], axis=1)
+    mo = np.median(o[rng.integers(0, o.size, (BOOT, o.size))], axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        r = np.where(np.isinf(mo), 0.0, mp / mo)
+    r = np.where(np.isnan(r), np.inf, r)  # inf / inf: both censored, counted as unknown-large
+    lo, hi = np.quantile(r, [(1 - level) / 2, (1 + level) / 2], method="lower")
+    return [float(lo), float(hi)]
+
+
 def summarize(runs, tasks, contenders) -> dict:
     out = {}
     for task in tasks:
@@ -226,7 +275,7 @@ def summarize(runs, tasks, contenders) -> dict:
                 continue
             wall = [r["wall_s_to_threshold"] if r["reached"] else math.inf for r in rs]
             steps = [r["env_steps_to_threshold"] if r["reached"] else math.inf for r in rs]
-            per[c] = {"runs": len(rs), "reached": sum(r["reached"] for r in rs),
+            per[c] = {"runs": len(rs), "reached": sum(r["reached"] for r in rs), "values": {"wall_s": wall, "env_steps": steps},
                       "wall_s": _stats(wall), "env_steps": _stats(steps),
                       "errors": sum(1 for r in runs if r["task"] == task and r["contender"] == c and r.get("error"))}
         ratios = {}  # per comparison: the fastest peer's median over ours'
@@ -240,7 +289,9 @@ def summarize(runs, tasks, contenders) -> dict:
                 ratio = None if math.isinf(ours_m) or math.isinf(peers[best]) else peers[best] / ours_m
                 ratios.setdefault(convention, {})[key] = {"ours": ours, "fastest_peer": best,
                                                            "peer_median": peers[best], "ours_median": ours_m,
-                                                           "ratio": ratio}
+                                                           "ratio": ratio,
+                                                           "ratio_ci95": ratio_interval(per[best]["values"][key],
+                                                                                        per[ours]["values"][key])}
         out[task] = {"contenders": per, "fastest_peer_over_ours": ratios}
     return out
 
@@ -281,7 +332,11 @@ def print_summary(summary, rules_by_task, args) -> None:
                 peer, d = NAMES[r["fastest_peer"]], 1 if key == "wall_s" else 0
                 head = f"fastest peer / ours ({convention}), {label}:"
                 if r["ratio"] is not None:
-                    print(f"{head} {peer} {_fmt(r['peer_median'], d)} / ours {_fmt(r['ours_median'], d)} = {r['ratio']:.2f}x")
+                    ci = r.get("ratio_ci95")
+                    ci_s = (f" [{ci[0]:.2f}, {'inf' if math.isinf(ci[1]) else f'{ci[1]:.2f}'}] (95% bootstrap over seeds)"
+                            if ci else "")
+                    print(f"{head} {peer} {_fmt(r['peer_median'], d)} / ours {_fmt(r['ours_median'], d)} = "
+                          f"{r['ratio']:.2f}x{ci_s}")
                 elif math.isinf(r["ours_median"]):
                     print(f"{head} n/a (ours' median run did not reach {THRESHOLD})")
                 else:
@@ -312,7 +367,10 @@ def write_json(path: str, doc: dict) -> None:
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--tasks", default=",".join(TASKS), help="comma-separated task ids")
-    p.add_argument("--seeds", type=int, default=3, help="seeds 0..N-1 per contender (default 3)")
+    p.add_argument("--seeds", type=int, default=3, help="N seeds per contender (default 3)")
+    p.add_argument("--seed-start", type=int, default=0, help="the first seed (default 0: seeds 0..N-1)")
+    p.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
+                   help="an override of ours' settings (ours and ours_fixed), as `sweep --set`; repeatable")
     p.add_argument("--max-steps", type=int, default=30_000, help="env-step cap per run (default 30000)")
     p.add_argument("--eval-every", type=int, default=1000, help="env steps between evaluations (default 1000)")
     p.add_argument("--eval-episodes", type=int, default=10, help="fixed evaluation episodes (default 10)")
@@ -325,8 +383,17 @@ def main(argv=None) -> int:
     tasks = [t for t in args.tasks.split(",") if t]
     contenders = [c for c in args.contenders.split(",") if c]
     bad = [c for c in contenders if c not in CONTENDERS]
-    if bad or not contenders or not tasks or args.seeds < 1 or args.max_steps < 1 or args.eval_every < 1:
-        p.error(f"bad arguments (contenders {bad or contenders}, tasks {tasks}, seeds {args.seeds})")
+    if bad or not contenders or not tasks or args.seeds < 1 or args.max_steps < 1 or args.eval_every < 1 \
+            or args.seed_start < 0:
+        p.error(f"bad arguments (contenders {bad or contenders}, tasks {tasks}, seeds {args.seeds}, "
+                f"seed start {args.seed_start})")
+    from maniskill_dualher.config import ConfigError
+    from maniskill_dualher.experiment import overrides
+    try:
+        args.overrides = overrides.parse_all(args.sets)
+    except ConfigError as e:
+        p.error(str(e))
+    seeds = list(range(args.seed_start, args.seed_start + args.seeds))
     from maniskill_dualher.experiment.presets import PRESETS
     if args.preset not in PRESETS:
         p.error(f"unknown preset {args.preset!r} (choose {', '.join(PRESETS)})")
@@ -337,21 +404,28 @@ def main(argv=None) -> int:
     torch.set_num_threads(1)
 
     print(f"# time_to_success: {', '.join(tasks)}; contenders {', '.join(NAMES[c] for c in contenders)}; "
-          f"seeds 0..{args.seeds - 1}; cap {args.max_steps} env steps; eval {args.eval_episodes} episodes every "
+          f"seeds {seeds[0]}..{seeds[-1]}; cap {args.max_steps} env steps; eval {args.eval_episodes} episodes every "
           f"{args.eval_every} steps; threshold {THRESHOLD}")
     print(f"# cpu: {cpu_name()}")
     print(f"# threads: {thread_info()}")
     print(f"# load average at start: {loadavg()}")
-    print(f"# ours: {args.preset!r} preset, sac_her_per: {describe_ours(our_config(tasks[0], 0, args))}")
+    print(f"# ours: {args.preset!r} preset, sac_her_per"
+          f"{' with ' + ' '.join(o.text() for o in args.overrides) if args.overrides else ''}: "
+          f"{describe_ours(our_config(tasks[0], 0, args))}")
     peers = [c for c in contenders if not c.startswith("ours")]
     if peers:
         print(f"# peers ({'; '.join(lib_version(peer_library(c)) for c in peers)}): " + ", ".join(f"{k} {v}" for k, v in ZOO.items()))
 
+    print("# shared settings (ours | peers):")
+    for k, v in shared_settings(our_config(tasks[0], 0, args)).items():
+        print(f"#   {k:36s} {str(v['ours']):48s} | {v['peers']}{'' if v['equal'] else '   (differs)'}")
     rules_by_task = {}
     doc = {"bench": "time_to_success", "version": 1, "complete": False, "started": _now(), "finished": None,
            "argv": sys.argv[1:] if argv is None else list(argv),
            "machine": {"cpu": cpu_name(), "threads": thread_info(), "loadavg_start": loadavg()},
-           "settings": {"threshold": THRESHOLD, "tasks": tasks, "seeds": list(range(args.seeds)),
+           "settings": {"threshold": THRESHOLD, "tasks": tasks, "seeds": seeds,
+                        "ours_overrides": [o.text() for o in args.overrides],
+                        "shared": shared_settings(our_config(tasks[0], 0, args)),
                         "contenders": contenders, "max_steps": args.max_steps, "eval_every": args.eval_every,
                         "eval_episodes": args.eval_episodes, "preset": args.preset, "peers": ZOO,
                         "versions": {c: lib_version(peer_library(c)) for c in peers}, "episodes": {}},
@@ -363,7 +437,7 @@ def main(argv=None) -> int:
         print(f"# {task}: {rules['max_episode_steps']}-step episodes, end on success "
               f"{rules['terminate_on_success']}, control {rules['control_mode'] or 'task default'}, reward "
               f"{rules['reward_mode']}, eval seeds {rules['eval_seeds'][0]}..{rules['eval_seeds'][-1]}")
-        for seed in range(args.seeds):
+        for seed in seeds:
             for c in contenders:
                 rec = {"task": task, "contender": c, "name": NAMES[c], "seed": seed, "error": None}
                 try:
