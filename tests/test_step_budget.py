@@ -38,3 +38,20 @@ def test_short_run_attributes_its_wall_time(tmp_path):
     assert parts["driver loop"] < 0.05 * sum(parts.values())  # >= 95% attributed
     assert abs(sum(parts.values()) - res["wall_s"]) < 0.02 * res["wall_s"]  # the parts add up to the whole
     assert "floor" in doc["report"][0] and doc["machine"]
+
+
+def test_paper_regime_runs_the_registry_arm_at_algorithm_1s_schedule(tmp_path):
+    """--regime paper measures the paper_regime experiment's episode arm: one update per finished episode
+    (so far fewer updates than env steps), 150-step episodes, HER k = 8, Table 3's lr and gamma."""
+    out = tmp_path / "budget.json"
+    r = _run("--regime", "paper", "--members", "1", "--steps", "400", "--learning-starts", "50",
+             "--out", str(out))
+    assert r.returncode == 0, r.stderr[-2000:]
+    res = json.loads(out.read_text())["results"][0]
+    cfg = res["cfg"]
+    assert res["task"] == "CloseMicrowave-v1" and res["regime"] == "paper"
+    assert cfg["sac"]["update_schedule"] == "episode" and cfg["replay"]["her_k"] == 8
+    assert cfg["max_episode_steps"] == 150 and cfg["sac"]["lr"] == 1e-4 and cfg["sac"]["gamma"] == 0.99
+    assert cfg["sac"]["random_steps"] == cfg["sac"]["learning_starts"] == 50
+    # one update per finished episode after learning starts: at most (400 - 50) / 1 episodes, far fewer than steps
+    assert 0 < res["updates"] < 400 - 50 and res["calls"]["sampling"] == res["updates"]
