@@ -375,7 +375,15 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     p.add_argument("--merge", metavar="OTHER", help="first add another sweep folder's scores/curves (new cells only, "
                                                    "same budgets and settings) to FOLDER, a results folder")
     p.add_argument("--resamples", type=int, default=10_000, help="bootstrap resamples (default: %(default)s)")
+    p.add_argument("--readme-table", action="store_true",
+                   help="only print the README's results table (the paper's claims) from FOLDER/claims.csv")
     a = p.parse_args(argv)
+    if a.readme_table:
+        if not (Path(a.folder) / "claims.csv").is_file():
+            print(f"error: {a.folder} holds no claims.csv", file=sys.stderr)
+            return 2
+        print(claims_mod.readme_table(read_rows(Path(a.folder) / "claims.csv")), end="")
+        return 0
     try:
         need = missing_package("matplotlib", "report draws its figures with")
         if need:
