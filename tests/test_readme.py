@@ -129,3 +129,61 @@ def test_every_post_hoc_claim_is_marked_and_its_replication_reported():
         m = REPLICATION.search(claims[key]["replication"])
         assert m, claims[key]["replication"]
         assert any(m.group(1).lstrip("+") in x or "run after its definition" in x for x in said), key
+
+
+# --------------------------------------------------------------------------- the README's first hour (issue 43)
+def _readme() -> str:
+    return (REPO / "README.md").read_text()
+
+
+def test_readme_stays_short():
+    assert len(_readme()) <= 10_000, f"README.md is {len(_readme())} characters: move prose to docs/"
+
+
+def test_readme_results_table_is_generated_from_claims_csv():
+    """The table between the README's markers is `report --readme-table` of results/reference/claims.csv."""
+    from maniskill_dualher.analysis import claims as claims_mod
+    rows = read_rows(REPO / "results" / "reference" / "claims.csv")
+    want = claims_mod.readme_table(rows)
+    assert claims_mod.readme_block(_readme()) == want, (
+        "regenerate it: python -m maniskill_dualher.report results/reference --readme-table")
+    paper = [r for r in rows if r["group"] == "paper" and r.get("diff")]
+    assert len(want.splitlines()) == 2 + len(paper) >= 3
+    for r in paper:   # each row's verdict word is the claim's
+        line = next(x for x in want.splitlines() if x.startswith(f"| `{r['claim']}` |"))
+        assert line.rstrip(" |").endswith(r["verdict"].split(" (")[0] + ("†" if r["survives_holm"] == "no" else ""))
+
+
+def test_the_generator_follows_claims_csv():
+    from maniskill_dualher.analysis import claims as claims_mod
+    row = {"claim": "a", "group": "paper", "statement": "dual_buffer > sac_her_per: successful CloseMicrowave-v1 "
+           "adaptation episodes", "n_a": "3", "n_b": "4", "mean_a": "10", "mean_b": "12.5", "diff": "-2.5",
+           "diff_ci95_low": "-4.25", "diff_ci95_high": "-0.5", "verdict": "contradicted", "survives_holm": "no"}
+    line = claims_mod.readme_table([row, dict(row, group="ablation", claim="z")]).splitlines()[2:]
+    assert line == ["| `a` | dual buffer > SAC+HER+PER: successful adaptation episodes | 10 (3) | 12.5 (4) | "
+                    "−2.5 [−4.25, −0.5] | contradicted† |"]
+
+
+def test_quick_start_runs_a_trained_agent_before_any_sweep():
+    text = _readme()
+    start = text.index("## First minutes")
+    commands = [ln for ln in text[start:].splitlines() if ln.startswith("python -m maniskill_dualher.")]
+    assert commands[0].startswith("python -m maniskill_dualher.evaluate results/policies/"), commands[0]
+    assert any(c.startswith("python -m maniskill_dualher.sweep") for c in commands[1:])
+
+
+def test_load_policy_snippet_runs_as_written(tmp_path):
+    """The README's Python block, exactly as written, in a fresh process from the repository's root: it makes
+    the env, loads a committed policy and runs one whole episode (CPU simulation, no render device)."""
+    import os
+    import subprocess
+    import sys
+    text = _readme()
+    blocks = re.findall(r"```python\n(.*?)```", text, re.S)
+    assert len(blocks) == 1
+    code = blocks[0]
+    assert "load_policy(" in code and "gym.make(" in code and "env.reset(" in code and "while not done" in code
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    r = subprocess.run([sys.executable, "-c", code], cwd=REPO, env=env, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert re.fullmatch(r"success: (True|False)", r.stdout.strip().splitlines()[-1]), r.stdout

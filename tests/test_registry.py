@@ -108,7 +108,7 @@ def test_an_experiment_with_arms_is_one_registry_entry(tmp_path, monkeypatch):
     assert cfgs["e_off"]["replay"]["ratio"] == [1.0, 0.0] and cfgs["warm"]["sac"]["random_steps"] == 0
     assert cfgs["paper"]["replay"]["ratio"] == [0.6, 0.4] and cfgs["paper"]["sac"]["random_steps"] == 100
     assert {"dual buffer, e off", "dual buffer, warm"} <= set(labels)   # display names
-    assert (out / "fig6_ablations.png").is_file()
+    assert [p.name for p in out.glob("fig6*.png")] == [registry.fig6_file("my_ablation")]
     row = next(r for r in _rows(out / "claims.csv") if r["claim"] == "mine")
     assert row["n_a"] == "2" and row["n_b"] == "2" and row["side_a"] == "dual_buffer my_ablation/e_off"
 
@@ -129,7 +129,7 @@ def test_an_experiment_lands_in_the_table_and_figure_it_declares(tmp_path, monke
     assert {(r["experiment"], r["variant"]) for r in t4} == {("ratio_08", "0.8/0.2")}
     assert not _rows(out / "ablations.csv") and not _rows(out / "table5_multitask.csv")
     assert "dual buffer, P(R)/P(E) = 0.8/0.2" in labels and (out / "fig5_multitask.png").is_file()
-    assert not (out / "fig6_ablations.png").exists()
+    assert not list(out.glob("fig6*.png"))
 
 
 TINY_TASK = "TinyReach-v1"
@@ -308,3 +308,25 @@ def test_docs_experiment_table_is_the_registry():
     for name, exp in registry.EXPERIMENTS.items():
         row = next(ln for ln in table.splitlines() if ln.startswith(f"| `{name}` |"))
         assert all(f"`{a.name}`" in row for a in exp.arms) and all(a.doc in row for a in exp.arms)
+
+
+def test_every_arm_has_a_display_name_and_one_display_means_one_set_of_runs():
+    """Legends name arms by their registry display (issue 43): every registry arm declares one unless it is
+    the paper's settings; two arms share a display (and so a colour) only when they make the same runs (same
+    settings, budget and prior) in experiments of one kind, e.g. budget's x4 and regime's long."""
+    from maniskill_dualher.experiment import registry
+    seen = {}
+    for e in registry.EXPERIMENTS.values():
+        for a in e.arms:
+            if not a.display:
+                assert registry.is_paper_treatment(e.name, a.name), f"{e.name}:{a.name} has no display name"
+                assert registry.arm_display(e.name, a.name) == registry.PAPER_DISPLAY
+                continue
+            assert a.display not in (a.name, a.name.replace("_", " ")) or "/" in a.name, (e.name, a.name)
+            shown = registry.arm_display(e.name, a.name)
+            ident = (e.kind, frozenset(a.settings), a.adapt_steps_factor, a.prior_method)
+            assert seen.setdefault(shown, ident) == ident, f"{shown!r} names two different arms"
+    assert registry.arm_display("mechanism", "e_off") == registry.arm_display("e_share", "e_off") + ", from scratch"
+    assert registry.fig6_file("e_share") == "fig6a_e_share.png"
+    assert len({registry.fig6_file(e) for e in registry.experiments_feeding(registry.FIG6)}) == len(
+        registry.experiments_feeding(registry.FIG6))

@@ -706,3 +706,75 @@ def test_scores_hold_each_run_cell_and_metric_once(folder, tmp_path, capsys):
     assert len(err) == 1 and "twice with different values" in err[0]
     assert {p: p.read_bytes() for p in ref.iterdir()} == before
 
+
+
+# --------------------------------------------------------------------------- figures a reader can print (issue 43)
+REFERENCE = Path(__file__).resolve().parents[1] / "results" / "reference"
+PAGE_HEIGHT_IN = 11.0   # a printed page (US letter; A4 is 11.7)
+
+
+def _png_inches(path: Path):
+    import struct
+    head = path.read_bytes()[:24]
+    assert head[:8] == b"\x89PNG\r\n\x1a\n", path
+    w, h = struct.unpack(">II", head[16:24])
+    from maniskill_dualher.analysis.plots import DPI
+    return w / DPI, h / DPI
+
+
+def test_no_reference_figure_is_taller_than_a_printed_page():
+    pngs = sorted(REFERENCE.glob("*.png"))
+    assert len(pngs) >= 5
+    tall = {p.name: round(_png_inches(p)[1], 2) for p in pngs if _png_inches(p)[1] > PAGE_HEIGHT_IN}
+    assert tall == {}, f"taller than {PAGE_HEIGHT_IN} in: {tall}"
+
+
+def test_reference_has_one_ablation_figure_per_ablation_experiment():
+    from maniskill_dualher.experiment import registry
+    from maniskill_dualher.analysis.runs import read_rows
+    present = {r["experiment"] for r in read_rows(REFERENCE / "ablations.csv")}
+    want = {registry.fig6_file(e) for e in registry.experiments_feeding(registry.FIG6) if e in present}
+    assert len(want) >= 5
+    assert {p.name for p in REFERENCE.glob("fig6*.png")} == want
+    summary = (REFERENCE / "summary.md").read_text()
+    assert all(f"]({f})" in summary for f in want)
+
+
+def test_ablation_legends_are_registry_display_names_one_colour_per_arm(tmp_path, monkeypatch):
+    """Every legend label of every ablation figure drawn from the reference is "<method display>, <arm display>"
+    of a registry cell (no internal arm key), one label has one colour in every figure, and no two curves of a
+    figure look alike (colour and line style)."""
+    from maniskill_dualher.analysis import plots
+    from maniskill_dualher.analysis.runs import read_rows
+    from maniskill_dualher.experiment import registry
+    from maniskill_dualher.methods import METHOD_SPECS
+    drawn = []   # (figure, label, colour, line style)
+    draw = plots.draw
+
+    def spy(ax, groups, *a, **k):
+        drawn.extend((current[0], lab, c, ls) for lab, (_, c, ls, _) in groups.items())
+        return draw(ax, groups, *a, **k)
+    monkeypatch.setattr(plots, "draw", spy)
+    curves = read_rows(REFERENCE / "curves.csv")
+    present = {r["experiment"] for r in curves}
+    current = [None]
+    for e in registry.experiments_feeding(registry.FIG6):
+        if e in present:
+            current[0] = e
+            assert plots.plot_ablation(curves, tmp_path / registry.fig6_file(e), e)
+    assert len({f for f, *_ in drawn}) >= 5
+    allowed = {f"{s.display}, {registry.arm_display(x.name, a.name)}"
+               for x in registry.EXPERIMENTS.values() for a in x.arms for s in METHOD_SPECS.values()}
+    labels = {lab for _, lab, _, _ in drawn}
+    assert labels <= allowed, sorted(labels - allowed)
+    keys = {a.name for x in registry.EXPERIMENTS.values() for a in x.arms if "_" in a.name}
+    import re
+    leaked = [(lab, k) for lab in labels for k in keys
+              if re.search(rf"\b({re.escape(k)}|{re.escape(k.replace('_', ' '))})\b", lab)]
+    assert leaked == []
+    colour = {}
+    for _, lab, c, _ in drawn:
+        assert colour.setdefault(lab, c) == c, f"{lab} drawn in {colour[lab]} and {c}"
+    for fig in {f for f, *_ in drawn}:
+        looks = [(c, ls) for f, _, c, ls in drawn if f == fig]
+        assert len(looks) == 2 * len(set(looks)), f"{fig}: two curves drawn alike"   # two panels each

@@ -3,17 +3,20 @@
 * Curves: the mean over seeds with a 95% percentile-bootstrap band over seeds (``mean_band``), at the
   evaluation points every seed of a curve has: a band of a success rate stays in [0, 1].
 * Names: methods by their registry display name (``methods.METHOD_SPECS``), experiments by their registry
-  title, arms by their name (``experiment/registry.py``).
+  title, arms by their registry display name (``registry.arm_display``): no internal arm key in a legend.
 * Which rows a figure draws: the cells whose experiment or arm declares it in ``feeds`` (registry file names,
   ``fig5_multitask.png:ratio`` for Fig. 5's ratio panel); nothing is inferred from an experiment's shape.
 * Colours: one per arm in every figure. A method's paper treatment (an arm whose settings change nothing,
   in a chain or single-task experiment) is drawn in the method's registry colour; every other arm gets a
-  fixed colour from ``ARM_PALETTE`` in registry order. Line style tells the methods apart
+  fixed colour from ``ARM_PALETTE`` in registry order, keyed on its display name (``registry.colour_key``: an
+  adaptation arm and its from-scratch twin share one). Line style tells the methods apart
   (``METHOD_STYLES``), so one arm of two methods shares its colour.
+* Size: no figure is taller than a printed page (``tests/test_report.py``); the ablations are one figure per
+  experiment (``registry.fig6_file``), not one tall figure.
 * Only what differs: success is shown, the evaluation return is not (sparse reward and episodes that end on
   success make them equal).
 
-The report calls ``plot_fig4``, ``plot_fig5``, ``plot_ablations`` and ``plot_aggregate``.
+The report calls ``plot_fig4``, ``plot_fig5``, ``plot_ablation`` (once per ablation) and ``plot_aggregate``.
 """
 from __future__ import annotations
 
@@ -36,11 +39,13 @@ RESAMPLES = 2_000
 DPI = 200
 FONT = {"font.size": 9, "axes.titlesize": 9.5, "axes.labelsize": 9, "xtick.labelsize": 8, "ytick.labelsize": 8,
         "legend.fontsize": 8, "figure.titlesize": 10}
-# Distinct colours for non-paper arms; the methods' own colours (tab:blue, tab:orange, tab:gray) left out.
-ARM_PALETTE = ("#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#bcbd22", "#17becf", "#98df8a",
-               "#ff9896", "#c5b0d5", "#c49c94", "#f7b6d2", "#dbdb8d", "#9edae5", "#1b9e77", "#cc6677",
-               "#7570b3", "#e7298a", "#66a61e", "#e6ab02", "#a6761d", "#000080", "#800000", "#008080",
-               "#808000", "#4b0082", "#ff1493", "#2f4f4f")
+# Colours of non-paper arms, in registry order of their colour keys; the methods' own colours (tab:blue,
+# tab:orange, tab:gray) left out. Ordered so that the arms of one figure (the registry's neighbours) differ:
+# the ratios, from scratch, then e_share's six (mechanism's twins share them), then the smaller experiments.
+ARM_PALETTE = ("#1b9e77", "#e7298a", "#9467bd", "#8c564b", "#e377c2", "#2ca02c", "#d62728", "#17becf",
+               "#bcbd22", "#006400", "#b8860b", "#8b0000", "#191970", "#6b6ecf", "#ad494a", "#31a354",
+               "#d6616b", "#8ca252", "#7b4173", "#a55194", "#3182bd", "#637939", "#e6550d", "#5254a3",
+               "#b5cf6b", "#cedb9c", "#e7969c", "#de9ed6")
 METHOD_STYLES = ("-", "--", "-.", ":")   # from the last registered method (the paper's) backwards: it is solid
 METHOD_MARKERS = ("o", "s", "^", "D")
 
@@ -57,22 +62,23 @@ def experiment_label(experiment: str) -> str:
 
 
 def arm_label(experiment: str, arm: str) -> str:
-    """The arm's display label: its name; a paper treatment says so."""
-    if is_paper_treatment(experiment, arm):
-        return "paper's settings"
-    e = EXPERIMENTS.get(experiment)
-    if e is not None and e.kind == SCRATCH_KIND and arm == PAPER_ARM:
-        return "from scratch"
-    return arm.replace("_", " ")
+    """The arm's display label (``registry.arm_display``)."""
+    return registry.arm_display(experiment, arm)
 
 
-def _arm_colours() -> Dict[Tuple[str, str], str]:
-    out, k = {}, 0
+def cell_label(experiment: str, arm: str, method: str) -> str:
+    """A curve's legend label: the method's display name and the arm's."""
+    return f"{method_label(method)}, {arm_label(experiment, arm)}"
+
+
+def _arm_colours() -> Dict[str, str]:
+    """colour key (``registry.colour_key``) -> colour, in registry order."""
+    out: Dict[str, str] = {}
     for e in EXPERIMENTS.values():
         for a in e.arms:
-            if is_paper_treatment(e.name, a.name):
-                continue
-            out[(e.name, a.name)], k = ARM_PALETTE[k % len(ARM_PALETTE)], k + 1
+            key = registry.colour_key(e.name, a.name)
+            if key not in out and not is_paper_treatment(e.name, a.name):
+                out[key] = ARM_PALETTE[len(out) % len(ARM_PALETTE)]
     return out
 
 
@@ -81,7 +87,7 @@ def color_of(method: str, arm: str = PAPER_ARM, experiment: Optional[str] = None
     spec = METHOD_SPECS.get(method)
     if experiment is None or is_paper_treatment(experiment, arm):
         return spec.color if spec is not None else "black"
-    return _arm_colours().get((experiment, arm), "black")
+    return _arm_colours().get(registry.colour_key(experiment, arm), "black")
 
 
 def style_of(method: str) -> Tuple[str, str]:
@@ -276,51 +282,79 @@ def _paper_cells(experiment: str, methods: Sequence[str]) -> List[Tuple[str, str
     return [(b, PAPER_ARM, m) for b in _transfer_experiments() for m in methods]
 
 
+def _twin_cells(e: str, runs: Dict[Tuple[str, str, str], set]) -> List[Tuple[str, str, str]]:
+    """For an arm of ``e`` without runs here, another experiment's arm of the same display (the same runs, e.g.
+    budget's x4 and regime's long) and kind."""
+    x = EXPERIMENTS.get(e)
+    if x is None:
+        return []
+    have = {k[1] for k in runs if k[0] == e}
+    keys = {registry.colour_key(e, a.name) for a in x.arms if a.name not in have and a.display}
+    return [k for k in runs if k[0] != e and k[0] in EXPERIMENTS and EXPERIMENTS[k[0]].kind == x.kind
+            and registry.colour_key(k[0], k[1]) in keys]
+
+
 def _ablation_cells(e: str, runs: Dict[Tuple[str, str, str], set]) -> List[Tuple[str, str, str]]:
     own = [k for k in runs if k[0] == e]
-    extra = _paper_cells(e, sorted({k[2] for k in own})) + _claim_cells(e)
+    extra = _twin_cells(e, runs) + _paper_cells(e, sorted({k[2] for k in own})) + _claim_cells(e)
     cells, seen = [], []
     for k in own + [k for k in extra if k in runs]:
         if frozenset(runs[k]) not in seen:  # one set of runs is drawn once
             seen.append(frozenset(runs[k]))
             cells.append(k)
     names = list(METHOD_SPECS)
+
+    def arm_order(k):
+        x = EXPERIMENTS.get(k[0])
+        arms = [a.name for a in x.arms] if x is not None else []
+        return arms.index(k[1]) if k[1] in arms else len(arms)
     return sorted(cells, key=lambda k: (names.index(k[2]) if k[2] in names else 9, not is_paper_treatment(k[0], k[1]),
-                                        k[0] != e, k[1]))
+                                        k[0] != e, arm_order(k), k[1]))
 
 
-def plot_ablations(curves, path: Path, experiments: Sequence[str]) -> bool:
-    """One row per ablation experiment: its arms, the paper treatment where the experiment has one, and each
-    claim's comparison arm (evaluation success; cumulative successful training episodes)."""
+ABLATION_SIZE = (7.0, 2.7)   # inches, the two panels; the legend below adds a line per one or two curves
+LEGEND_TWO_COLUMNS = 48      # longest label (characters) that two legend columns fit within the figure's width
+
+
+def plot_ablation(curves, path: Path, experiment: str) -> bool:
+    """One ablation experiment (``registry.fig6_file``): its arms, the paper treatment where the experiment has
+    one, and each claim's comparison arm; evaluation success and cumulative successful training episodes. Arms
+    by display name, one colour per arm in every figure; the title names the experiment's arms not drawn."""
     adapt = [r for r in curves if r["role"] == "adapt"]
-    present = [e for e in experiments if any(r["experiment"] == e for r in adapt)]
-    if not present:
+    if not any(r["experiment"] == experiment for r in adapt):
         return False
     runs: Dict[Tuple[str, str, str], set] = defaultdict(set)
     for r in adapt:
         runs[(r["experiment"], r["arm"], r["method"])].add(r["run"])
+    cells = _ablation_cells(experiment, runs)
+    want = set(cells)
+    g = curves_by(adapt, lambda r: (r["experiment"], r["arm"], r["method"]) in want,
+                  lambda r: (r["experiment"], r["arm"], r["method"]))
+    groups = {cell_label(*k): (g[k], color_of(k[2], k[1], k[0]), *style_of(k[2])) for k in cells}
+    e = EXPERIMENTS.get(experiment)
+    key = lambda x, a: "paper" if is_paper_treatment(x, a) else registry.colour_key(x, a)  # noqa: E731
+    drawn = {key(k[0], k[1]) for k in cells}
+    absent = [arm_label(experiment, a.name) for a in (e.arms if e is not None else ())
+              if key(experiment, a.name) not in drawn]
     plt = _plt()
-    fig = plt.figure(figsize=(9.5, 2.6 * len(present)), layout="constrained")
-    subs = np.atleast_1d(fig.subfigures(len(present), 1))
-    for i, e in enumerate(present):
-        cells = _ablation_cells(e, runs)
-        want = set(cells)
-        g = curves_by(adapt, lambda r: (r["experiment"], r["arm"], r["method"]) in want,
-                      lambda r: (r["experiment"], r["arm"], r["method"]))
-        groups = {}
-        for k in cells:
-            lab = f"{method_label(k[2])}, {arm_label(k[0], k[1])}"
-            if k[0] != e and not is_paper_treatment(k[0], k[1]) and EXPERIMENTS.get(k[0], None) is not None \
-                    and EXPERIMENTS[k[0]].kind != SCRATCH_KIND:
-                lab += f" [{experiment_label(k[0])}]"
-            groups[lab] = (g[k], color_of(k[2], k[1], k[0]), *style_of(k[2]))
-        axes = subs[i].subplots(1, 2)
-        draw(axes[0], groups, "eval_success_rate", "evaluation success", "success rate", rate=True)
-        draw(axes[1], groups, "train_successes", "successful training episodes", "cumulative")
-        axes[1].legend(loc="upper left", bbox_to_anchor=(1.03, 1.0), frameon=False, fontsize=7.5)
-        subs[i].suptitle(f"{experiment_label(e)}", fontsize=9.5, fontweight="bold")
-    fig.suptitle("Ablations of the adaptation stage: each experiment's arms with the paper's settings and each claim's "
-                 "comparison arm\nmean over seeds, 95% bootstrap band; colour: arm, line style: method", fontsize=10)
+    fig, axes = plt.subplots(1, 2, figsize=ABLATION_SIZE)
+    # drawn last to first, so the first listed (the paper's settings; a shorter budget, whose runs are the first
+    # steps of a longer one's) lie on top; the legend keeps the listed order
+    on_top = dict(reversed(list(groups.items())))
+    draw(axes[0], on_top, "eval_success_rate", "evaluation success", "success rate", rate=True)
+    draw(axes[1], on_top, "train_successes", "successful training episodes", "cumulative")
+    handles, labels = axes[0].get_legend_handles_labels()
+    place = {lab: i for i, lab in enumerate(groups)}
+    pairs = sorted(zip(handles, labels), key=lambda hl: place.get(hl[1].rsplit(" (n=", 1)[0], len(place)))
+    ncol = 2 if max(len(x) for x in groups) <= LEGEND_TWO_COLUMNS else 1
+    fig.legend([h for h, _ in pairs], [lab for _, lab in pairs], loc="upper center", bbox_to_anchor=(0.5, 0.0),
+               ncol=ncol, frameon=False)
+    title = experiment_label(experiment)
+    note = "mean over seeds, 95% bootstrap band; line style: method"
+    if absent:
+        note += f"\nno runs in this folder: {', '.join(absent)}"
+    fig.suptitle(f"{title}\n{note}", fontsize=9.5)
+    fig.tight_layout()
     save_figure(fig, path)
     plt.close(fig)
     return True

@@ -346,11 +346,15 @@ def _build(src: Path, out: Path, name: str, resamples: int, reference: Optional[
         atomic_write_text(out / "diagnostics.csv", csv_text(diag_rows, diagnostics_mod.COLUMNS))
         written.append("diagnostics.csv")
     figures = []
-    fig6 = registry.experiments_feeding(registry.FIG6)
-    ablations = [e for e in dict.fromkeys(r["experiment"] for r in scores) if e in fig6]
+    present = {r["experiment"] for r in scores}
+    ablations = [(registry.fig6_file(e), lambda p, e=e: plots.plot_ablation(curves, p, e))
+                 for e in registry.experiments_feeding(registry.FIG6) if e in present]
+    for stale in out.glob("fig6*.png"):  # a results folder's copy: an ablation figure this report does not draw
+        if stale.name not in {f for f, _ in ablations}:
+            stale.unlink()
     for fig, fn in (("fig4_single_task.png", lambda p: plots.plot_fig4(curves, p, ref_curves)),
                     ("fig5_multitask.png", lambda p: plots.plot_fig5(curves, p, ref_curves)),
-                    ("fig6_ablations.png", lambda p: plots.plot_ablations(curves, p, ablations)),
+                    *ablations,
                     ("fig7_aggregate.png", lambda p: plots.plot_aggregate(scores, p)),
                     ("fig8_budget.png", lambda p: plots_budget.plot_budget(budget_rows, p))):
         if fn(out / fig):
@@ -371,7 +375,15 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     p.add_argument("--merge", metavar="OTHER", help="first add another sweep folder's scores/curves (new cells only, "
                                                    "same budgets and settings) to FOLDER, a results folder")
     p.add_argument("--resamples", type=int, default=10_000, help="bootstrap resamples (default: %(default)s)")
+    p.add_argument("--readme-table", action="store_true",
+                   help="only print the README's results table (the paper's claims) from FOLDER/claims.csv")
     a = p.parse_args(argv)
+    if a.readme_table:
+        if not (Path(a.folder) / "claims.csv").is_file():
+            print(f"error: {a.folder} holds no claims.csv", file=sys.stderr)
+            return 2
+        print(claims_mod.readme_table(read_rows(Path(a.folder) / "claims.csv")), end="")
+        return 0
     try:
         need = missing_package("matplotlib", "report draws its figures with")
         if need:

@@ -10,7 +10,8 @@ task, chain, method, ...) in ``cell.json``; the analysis groups by them and infe
 
 Add an experiment: one ``Experiment(...)`` entry in ``EXPERIMENTS`` below; claims about it go in
 ``analysis/claims.py``. What it feeds (``feeds``: tables and figures by file name, ``FEEDS``) is declared
-here and nowhere inferred; an ablation feeds ``ablations.csv`` and ``fig6_ablations.png`` by default. Its
+here and nowhere inferred; an ablation feeds ``ablations.csv`` and its own figure, ``fig6<letter>_<name>.png``
+(``fig6_file``), by default. Every arm has a ``display`` name, the figures' legends (``arm_display``). Its
 seeds in the reference preset are the ones ``results/reference`` holds (none until it is run there), and
 the experiment table of ``docs/experiments.md`` is printed from here (``python -m
 maniskill_dualher.experiment.registry --markdown``).
@@ -38,7 +39,7 @@ PAPER_TARGET = PAPER_CHAIN[-1]
 SINGLE_TASK_CSV, TABLE4_CSV, TABLE5_CSV, ABLATIONS_CSV, BUDGET_CSV = (
     "single_task.csv", "table4_sampling_ratio.csv", "table5_multitask.csv", "ablations.csv", "budget.csv")
 FIG4, FIG5, FIG5_RATIOS, FIG6, FIG7 = (
-    "fig4_single_task.png", "fig5_multitask.png", "fig5_multitask.png:ratio", "fig6_ablations.png",
+    "fig4_single_task.png", "fig5_multitask.png", "fig5_multitask.png:ratio", "fig6<letter>_<experiment>.png",
     "fig7_aggregate.png")
 FEEDS = {
     SINGLE_TASK_CSV: "single-task runs: one row per task, method and metric",
@@ -50,7 +51,7 @@ FEEDS = {
     FIG4: "the paper's Fig. 4: single-task curves per task",
     FIG5: "the paper's Fig. 5: adaptation curves on the target, transfer and from scratch",
     FIG5_RATIOS: "Fig. 5's sampling-ratio panel",
-    FIG6: "one row of curves per ablation experiment",
+    FIG6: "one figure per ablation experiment (fig6a_e_share.png, ...: fig6_file)",
     FIG7: "rliable-style aggregates of single-task runs",
 }
 ABLATION_FEEDS = (ABLATIONS_CSV, FIG6)
@@ -73,6 +74,9 @@ class Arm:
     adapt_steps_factor: float = 1.0            # the adaptation stage's budget times this (a longer regime)
     prior_method: Optional[str] = None         # source stages trained by this method (one prior for all)
     feeds: Tuple[str, ...] = ()                # tables/figures (FEEDS) it feeds beyond its experiment's
+    # the legend name in every figure (arm_display); arms of one colour share it. Empty: the paper arm's
+    # "paper's settings" where it changes nothing, else the name (tests hold every registry arm to a display)
+    display: str = ""
 
     def __post_init__(self):
         _check_feeds(f"arm {self.name!r}", self.feeds)
@@ -124,8 +128,19 @@ class Experiment:
         raise ConfigError(f"experiment {self.name!r} has no arm {name!r}")
 
 
+# Display names shared by arms of one treatment (an adaptation arm and its from-scratch twin: one colour;
+# arm_display adds ", from scratch" to a scratch experiment's arms), or by two arms of the same runs.
+PAPER_DISPLAY = "paper's settings"
+E_OFF = "E off (ratio 1/0)"
+R_MATCHED = "R's updates matched (1/0.6 per env step)"
+R_STARVED = "E off, 0.6 updates per env step"
+E_CRITIC = "E's batches train the critics only"
+E_OFF_MATCHED = "E off, 1/0.6 updates per env step"
+X4 = "4× adaptation budget"
+
+
 def _ratio_arm(r: str) -> Arm:
-    return Arm(r, (f"adapt.replay.ratio={r}",), doc=f"adaptation stage samples R/E at {r}")
+    return Arm(r, (f"adapt.replay.ratio={r}",), doc=f"adaptation stage samples R/E at {r}", display=r)
 
 
 # The paper's own regime (issue 41): Table 3's settings in the adaptation stage, on a prior that keeps the
@@ -156,23 +171,28 @@ EXPERIMENTS: Dict[str, Experiment] = {e.name: e for e in (
                arms=tuple(_ratio_arm(r) for r in ("0.5/0.5", "0.6/0.4", "0.7/0.3")), methods="sampling_ratio",
                default=True, paper="Table 4", feeds=(TABLE4_CSV, FIG5_RATIOS)),
     Experiment("scratch", "The last task from scratch, adaptation budget and settings (control)", "scratch",
-               methods="transfer", default=True, paper="not in the paper (tests section 3.1's premise)",
+               methods="transfer", arms=(Arm(PAPER_ARM, display="from scratch"),), default=True,
+               paper="not in the paper (tests section 3.1's premise)",
                feeds=(TABLE5_CSV, FIG5), doc="the control the paper never ran: does pretraining help?"),
     # ------------------------------------------------------------------ why the dual buffer loses (ablations)
     # Each changes the adaptation stage only, so every arm adapts the same prior (the source stages are shared).
     Experiment("e_share", "How much of the dual buffer's updates E takes", "chain", methods=("dual_buffer",),
                doc="and what E's own batches do", arms=(
         Arm(PAPER_ARM, doc="Algorithm 1: whole batch from E with probability 0.4"),
-        Arm("e_off", ("adapt.replay.ratio=1/0",), doc="same prior, E never sampled in adaptation"),
-        Arm("split", ("adapt.replay.dual_mode=split",), doc="E's 40% inside every batch", max_seeds=8),
+        Arm("e_off", ("adapt.replay.ratio=1/0",), doc="same prior, E never sampled in adaptation",
+            display=E_OFF),
+        Arm("split", ("adapt.replay.dual_mode=split",), doc="E's 40% inside every batch", max_seeds=8,
+            display="E's 40% inside every batch"),
         Arm("r_matched", ("adapt.sac.updates_per_step=1/0.6",),
-            doc="1/0.6 updates per env step: as many updates from R as SAC+HER+PER"),
+            doc="1/0.6 updates per env step: as many updates from R as SAC+HER+PER", display=R_MATCHED),
         Arm("r_starved", ("adapt.replay.ratio=1/0", "adapt.sac.updates_per_step=0.6"),
-            doc="E off at 0.6 updates per env step: R's share of the paper arm's updates, no E batches"),
+            doc="E off at 0.6 updates per env step: R's share of the paper arm's updates, no E batches",
+            display=R_STARVED),
         Arm("e_critic", ("adapt.replay.e_batches=critic",),
-            doc="E's batches train the critics only: no actor or alpha step on them"),
+            doc="E's batches train the critics only: no actor or alpha step on them", display=E_CRITIC),
         Arm("e_off_matched", ("adapt.replay.ratio=1/0", "adapt.sac.updates_per_step=1/0.6"),
-            doc="E off at 1/0.6 updates per env step: r_matched's update count, every update from R"),
+            doc="E off at 1/0.6 updates per env step: r_matched's update count, every update from R",
+            display=E_OFF_MATCHED),
     )),
     # The same contrasts with no prior at all: the last task from scratch (adaptation budget and settings).
     Experiment("mechanism", "Where E's cost comes from, without transfer: R's lost updates vs E's own batches",
@@ -181,53 +201,63 @@ EXPERIMENTS: Dict[str, Experiment] = {e.name: e for e in (
                    "SAC+HER+PER's own from-scratch runs for it and e_off is the negative control (scratch_e_off: "
                    "exactly 0)", arms=(
         Arm("e_off", ("adapt.replay.ratio=1/0",),
-            doc="E never sampled: SAC+HER+PER bit for bit (the negative control; claims use SAC+HER+PER's runs)"),
+            doc="E never sampled: SAC+HER+PER bit for bit (the negative control; claims use SAC+HER+PER's runs)",
+            display=E_OFF),
         Arm("r_matched", ("adapt.sac.updates_per_step=1/0.6",),
-            doc="1/0.6 updates per env step: R gets SAC+HER+PER's updates, E's batches on top"),
+            doc="1/0.6 updates per env step: R gets SAC+HER+PER's updates, E's batches on top", display=R_MATCHED),
         Arm("r_starved", ("adapt.replay.ratio=1/0", "adapt.sac.updates_per_step=0.6"),
-            doc="E off at 0.6 updates per env step: R's share of the paper arm's updates, no E batches"),
+            doc="E off at 0.6 updates per env step: R's share of the paper arm's updates, no E batches",
+            display=R_STARVED),
         Arm("e_critic", ("adapt.replay.e_batches=critic",),
-            doc="E's batches train the critics only: no actor or alpha step on them"),
+            doc="E's batches train the critics only: no actor or alpha step on them", display=E_CRITIC),
         Arm("e_off_matched", ("adapt.replay.ratio=1/0", "adapt.sac.updates_per_step=1/0.6"),
-            doc="E off at 1/0.6 updates per env step: r_matched's update count, every update from R"),
+            doc="E off at 1/0.6 updates per env step: r_matched's update count, every update from R",
+            display=E_OFF_MATCHED),
     )),
     Experiment("matched_chain", "R's updates matched in every stage: does the dual buffer's prior catch up?",
                "chain", methods=("dual_buffer",),
                doc="does it close the gap (claims matched_prior, matched_a; its own gain: matched_gain)?", arms=(
         Arm("r_matched_all", ("sac.updates_per_step=1/0.6",),
-            doc="1/0.6 updates per env step in every stage (source stages too)"),
+            doc="1/0.6 updates per env step in every stage (source stages too)",
+            display="R's updates matched in every stage"),
     )),
-    Experiment("budget", "The adaptation budget: 2x, 4x and 8x the paper arm's 12k env steps", "chain",
+    Experiment("budget", "A longer adaptation budget: multiples of the paper arm's", "chain",
                methods="transfer", doc="does the order of the methods change with the budget?", arms=(
-        Arm("x2", doc="2x the adaptation budget", adapt_steps_factor=2.0, feeds=(BUDGET_CSV,)),
+        Arm("x2", doc="2x the adaptation budget", adapt_steps_factor=2.0, feeds=(BUDGET_CSV,),
+            display="2× adaptation budget"),
         Arm("x4", doc="4x the adaptation budget (the regime experiment's long arm)", adapt_steps_factor=4.0,
-            feeds=(BUDGET_CSV,)),
-        Arm("x8", doc="8x the adaptation budget", adapt_steps_factor=8.0, max_seeds=8, feeds=(BUDGET_CSV,)),
+            feeds=(BUDGET_CSV,), display=X4),
+        Arm("x8", doc="8x the adaptation budget", adapt_steps_factor=8.0, max_seeds=8, feeds=(BUDGET_CSV,),
+            display="8× adaptation budget"),
     )),
     Experiment("shared_prior", "One prior for both methods: SAC+HER+PER's source stages", "chain",
                methods="transfer", doc="is the gap the prior or the adaptation?", arms=(
         Arm("shared", prior_method="sac_her_per",
             doc="both adapt from SAC+HER+PER's prior (networks and R); the dual buffer's E starts from R's real "
-                "reward-1 rows"),
+                "reward-1 rows", display="one shared prior (SAC+HER+PER's)"),
     )),
     Experiment("e_content", "What the dual buffer's E holds in adaptation", "chain", methods=("dual_buffer",), arms=(
         Arm("e_target_only", ("adapt.replay.carry_success_buffer=false",),
-            doc="E starts empty in adaptation: only the target task's successes", max_seeds=8),
+            doc="E starts empty in adaptation: only the target task's successes", max_seeds=8,
+            display="E of the target task's successes only"),
         Arm("e_episodes", ("adapt.replay.success_buffer=episodes",),
-            doc="section 4.2: every real transition of a successful episode enters E", max_seeds=8),
+            doc="section 4.2: every real transition of a successful episode enters E", max_seeds=8,
+            display="E of whole successful episodes"),
     )),
     Experiment("warm_start", "Fine-tuning collapse: the prior acts from the first step", "chain", methods="transfer",
                arms=(
         Arm(PAPER_ARM, doc="1000 uniform-random steps first, lr 1e-3"),
         Arm("warm", ("adapt.sac.random_steps=0", "adapt.sac.learning_starts=0"),
-            doc="no random steps: the prior acts and learns from step 0 on its carried replay"),
+            doc="no random steps: the prior acts and learns from step 0 on its carried replay",
+            display="warm start (no random steps)"),
         Arm("warm_low_lr", ("adapt.sac.random_steps=0", "adapt.sac.learning_starts=0", "adapt.sac.lr=3e-4"),
-            doc="warm, and a lower adaptation learning rate", max_seeds=8),
+            doc="warm, and a lower adaptation learning rate", max_seeds=8, display="warm start, lr 3e-4"),
     )),
     Experiment("her_episode", "Algorithm 1's hindsight goals: k random states of the episode", "chain",
                methods="transfer", arms=(
         Arm(PAPER_ARM, doc="HER 'future'"),
-        Arm("her_episode", ("replay.her_strategy=episode",), doc="HER 'episode' in every stage (changes the prior)"),
+        Arm("her_episode", ("replay.her_strategy=episode",), doc="HER 'episode' in every stage (changes the prior)",
+            display="HER goals from the whole episode"),
     ), max_seeds=8),
     Experiment("paper_regime", "The paper's own regime: Table 3's settings, 3.6M adaptation env steps, one shared "
                "SAC+HER+PER prior", "chain", methods="transfer",
@@ -236,17 +266,20 @@ EXPERIMENTS: Dict[str, Experiment] = {e.name: e for e in (
                    "steps) on the reference preset's source stages; results/paper_regime/", arms=(
         Arm("episode", PAPER_REGIME_SETTINGS + ("adapt.sac.update_schedule=episode", "adapt.sac.updates_per_episode=1"),
             prior_method="sac_her_per",
-            doc="Algorithm 1: one update per finished episode (the pilot, results/paper_regime)"),
+            doc="Algorithm 1: one update per finished episode (the pilot, results/paper_regime)",
+            display="Table 3's settings, one update per episode"),
         Arm("step", PAPER_REGIME_SETTINGS + ("adapt.sac.update_schedule=step", "adapt.sac.updates_per_step=1"),
             prior_method="sac_her_per",
-            doc="one update per env step (the confirmatory study's second schedule; ~3.6M updates a run)"),
+            doc="one update per env step (the confirmatory study's second schedule; ~3.6M updates a run)",
+            display="Table 3's settings, one update per env step"),
     )),
     Experiment("regime", "A longer adaptation (4x), with updates per env step or per episode", "chain",
                methods="transfer", doc="do scarce updates decide the sign?", arms=(
         Arm("long", doc="4x the adaptation budget (the same runs as budget's x4)", adapt_steps_factor=4.0,
-            feeds=(BUDGET_CSV,)),
+            feeds=(BUDGET_CSV,), display=X4),
         Arm("long_episode", ("adapt.sac.update_schedule=episode",), adapt_steps_factor=4.0,
-            doc="4x the adaptation budget and Algorithm 1's schedule: one update per finished episode"),
+            doc="4x the adaptation budget and Algorithm 1's schedule: one update per finished episode",
+            display="4× adaptation budget, one update per episode"),
     ), max_seeds=6),
 )}
 
@@ -301,6 +334,43 @@ def is_paper_treatment(experiment: str, arm: str) -> bool:
     return True
 
 
+def _arm(experiment: str, arm: str) -> Tuple[Optional[Experiment], Optional[Arm]]:
+    e = EXPERIMENTS.get(experiment)
+    return e, (next((x for x in e.arms if x.name == arm), None) if e is not None else None)
+
+
+def arm_display(experiment: str, arm: str) -> str:
+    """An arm's name in every legend: its ``display``; the paper's settings for an arm that changes nothing; a
+    scratch experiment's arm says "from scratch". An arm the registry does not have, or one without a display
+    (registered at run time), is its name with spaces."""
+    e, a = _arm(experiment, arm)
+    if a is not None and a.display:
+        name = a.display
+    elif is_paper_treatment(experiment, arm):
+        return PAPER_DISPLAY
+    else:
+        name = arm.replace("_", " ")
+    if e is not None and e.kind == "scratch" and not name.endswith("from scratch"):
+        name += ", from scratch"
+    return name
+
+
+def colour_key(experiment: str, arm: str) -> str:
+    """What an arm's colour is keyed on: its display as declared, so an adaptation arm and its from-scratch twin,
+    or two arms of the same runs, share one colour."""
+    _, a = _arm(experiment, arm)
+    return a.display if a is not None and a.display else f"{experiment}:{arm}"
+
+
+def fig6_file(experiment: str) -> str:
+    """The figure of one ablation experiment: ``fig6<letter>_<name>.png``, the letter its place among the
+    experiments that feed FIG6 in registry order (fixed, whichever of them a folder holds)."""
+    names = experiments_feeding(FIG6)
+    i = names.index(experiment) if experiment in names else len(names)
+    letter = "abcdefghijklmnopqrstuvwxyz"[i] if i < 26 else f"z{i}"
+    return f"fig6{letter}_{experiment}.png"
+
+
 # --------------------------------------------------------------------------- the table of docs/experiments.md
 def _md(text: str) -> str:
     return text.replace("|", "\\|")
@@ -314,12 +384,13 @@ def markdown_table() -> str:
         kind = e.kind + (", default" if e.default else "") + (f", {e.max_seeds} seeds" if e.max_seeds else "")
         methods = e.methods if isinstance(e.methods, str) else "+".join(e.methods)
         arms = "; ".join(
-            f"`{a.name}`" + (f" ({a.max_seeds} seeds)" if a.max_seeds else "")
+            f"`{a.name}`" + (f" \"{a.display}\"" if a.display not in ("", a.name) else "")
+            + (f" ({a.max_seeds} seeds)" if a.max_seeds else "")
             + (f": {a.doc}" if a.doc else (": as the preset" if not a.settings else f": {', '.join(a.settings)}"))
             + (f" [+ {', '.join(f'`{f}`' for f in a.feeds)}]" if a.feeds else "")
             for a in e.arms)
         question = e.title + (f" [{e.paper}]" if e.paper else "") + (f": {e.doc}" if e.doc else "")
-        feeds = ", ".join(f"`{f}`" for f in e.feeds) or "nothing"
+        feeds = ", ".join(f"`{fig6_file(e.name) if f == FIG6 else f}`" for f in e.feeds) or "nothing"
         lines.append(f"| `{e.name}` | {kind}; methods: {methods} | {_md(arms)} | {_md(question)} | {feeds} |")
     return "\n".join(lines) + "\n"
 
