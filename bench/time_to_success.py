@@ -162,8 +162,11 @@ def describe_ours(cfg) -> str:
 
 
 # --------------------------------------------------------------------------- one run each
-def _point(env_steps: int, success: float, wall: float, **extra) -> dict:
-    return {"env_steps": int(env_steps), "eval_success_rate": float(success), "wall_s": round(wall, 3), **extra}
+def _point(env_steps: int, success: float, wall: float, cpu: float, **extra) -> dict:
+    """One evaluation point; ``cpu_s``: the process's CPU time (all its threads) over the same slices as
+    ``wall_s``, which a busy machine disturbs far less than the wall clock."""
+    return {"env_steps": int(env_steps), "eval_success_rate": float(success), "wall_s": round(wall, 3),
+            "cpu_s": round(cpu, 3), **extra}
 
 
 def run_ours(task: str, seed: int, args, rules: dict, fixed_length: bool = False) -> dict:
@@ -175,17 +178,18 @@ def run_ours(task: str, seed: int, args, rules: dict, fixed_length: bool = False
     tr.save_checkpoint = lambda *a, **k: None  # no checkpoints (the peers write none)
     setup_s = time.perf_counter() - t_setup
     E = cfg.eval_every
-    wall, curve, reached = 0.0, [], None
+    wall, cpu, curve, reached = 0.0, 0.0, [], None
     try:
         while True:
             before = tr.env_steps
             torch.set_num_threads(1)
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             final = run_one(tr, stop_at=(tr.env_steps // E + 1) * E)
             wall += time.perf_counter() - t0
+            cpu += time.process_time() - c0
             row = tr.rows[-1] if tr.rows else None
             if row is not None and (not curve or int(row["env_steps"]) != curve[-1]["env_steps"]):
-                curve.append(_point(row["env_steps"], row["eval_success_rate"], wall, updates=int(row["updates"]),
+                curve.append(_point(row["env_steps"], row["eval_success_rate"], wall, cpu, updates=int(row["updates"]),
                                     eval_episode_length=row.get("eval_episode_length"),
                                     loop_wall_time_s=row.get("wall_time_s")))
                 if row["eval_success_rate"] >= THRESHOLD:
@@ -194,7 +198,7 @@ def run_ours(task: str, seed: int, args, rules: dict, fixed_length: bool = False
             if final is not None or tr.env_steps >= cfg.total_steps or tr.env_steps == before:
                 break
         return dict(reached=reached is not None, curve=curve, setup_s=round(setup_s, 3), wall_s_total=round(wall, 3),
-                    env_steps_total=int(tr.env_steps), updates_total=int(tr.updates), config=cfg.to_dict())
+                    cpu_s_total=round(cpu, 3), env_steps_total=int(tr.env_steps), updates_total=int(tr.updates), config=cfg.to_dict())
     finally:
         tr.env.close()
         shutil.rmtree(tmp, ignore_errors=True)
@@ -212,23 +216,24 @@ def run_peer(contender: str, task: str, seed: int, args, rules: dict) -> dict:
     model = make_peer_sac(lib, env, seed, **ZOO)
     setup_s = time.perf_counter() - t_setup
     E, cap, T = args.eval_every, args.max_steps, rules["max_episode_steps"]
-    wall, curve, reached, mismatches = 0.0, [], None, 0
+    wall, cpu, curve, reached, mismatches = 0.0, 0.0, [], None, 0
     try:
         while model.num_timesteps < cap:
             n = min((model.num_timesteps // E + 1) * E, cap) - model.num_timesteps
             torch.set_num_threads(1)
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             model.learn(total_timesteps=n, reset_num_timesteps=False, progress_bar=False)
             ev = evaluate_peer(model, eval_env, rules["eval_seeds"], T, initial_obs=True)
             wall += time.perf_counter() - t0
+            cpu += time.process_time() - c0
             mismatches += sum(not np.allclose(a, b, atol=1e-6) for a, b in zip(ev.pop("initial_obs"), rules["init_obs"]))
-            curve.append(_point(model.num_timesteps, ev["eval_success_rate"], wall, updates=int(model._n_updates),
+            curve.append(_point(model.num_timesteps, ev["eval_success_rate"], wall, cpu, updates=int(model._n_updates),
                                 eval_episode_length=ev["eval_mean_length"]))
             if ev["eval_success_rate"] >= THRESHOLD:
                 reached = curve[-1]
                 break
         return dict(reached=reached is not None, curve=curve, setup_s=round(setup_s, 3), wall_s_total=round(wall, 3),
-                    env_steps_total=int(model.num_timesteps), updates_total=int(model._n_updates),
+                    cpu_s_total=round(cpu, 3), env_steps_total=int(model.num_timesteps), updates_total=int(model._n_updates),
                     eval_state_mismatches=int(mismatches), settings=dict(ZOO, lib=lib_version(lib),
                                                                          train_episodes_end_on_success=not own))
     finally:
@@ -244,6 +249,7 @@ def _stats(xs):
     return {"median": float(np.median(vals)), "min": float(vals[0]), "max": float(vals[-1]), "n": len(vals)}
 
 
+KEYS = ("wall_s", "cpu_s", "env_steps")  # time to the threshold: wall clock, process CPU time, env steps
 BOOT = 10_000  # bootstrap resamples for the ratio of medians
 
 
@@ -273,14 +279,14 @@ def summarize(runs, tasks, contenders) -> dict:
             rs = [r for r in runs if r["task"] == task and r["contender"] == c and r.get("error") is None]
             if not rs:
                 continue
-            wall = [r["wall_s_to_threshold"] if r["reached"] else math.inf for r in rs]
-            steps = [r["env_steps_to_threshold"] if r["reached"] else math.inf for r in rs]
-            per[c] = {"runs": len(rs), "reached": sum(r["reached"] for r in rs), "values": {"wall_s": wall, "env_steps": steps},
-                      "wall_s": _stats(wall), "env_steps": _stats(steps),
+            vals = {k: [r[f"{k}_to_threshold"] if r["reached"] and r.get(f"{k}_to_threshold") is not None
+                        else math.inf for r in rs] for k in KEYS}
+            per[c] = {"runs": len(rs), "reached": sum(r["reached"] for r in rs), "values": vals,
+                      **{k: _stats(v) for k, v in vals.items()},
                       "errors": sum(1 for r in runs if r["task"] == task and r["contender"] == c and r.get("error"))}
         ratios = {}  # per comparison: the fastest peer's median over ours'
         for convention, ours, group in COMPARISONS:
-            for key in ("wall_s", "env_steps"):
+            for key in KEYS:
                 peers = {c: per[c][key]["median"] for c in per if c in group}
                 if ours not in per or not peers:
                     continue
@@ -317,19 +323,20 @@ def print_summary(summary, rules_by_task, args) -> None:
         print(f"## {task}: {ru['max_episode_steps']}-step episodes, end on success: "
               f"{'yes' if ru['terminate_on_success'] else 'no'}; success >= {THRESHOLD} over {args.eval_episodes} "
               f"eval episodes every {args.eval_every} env steps; cap {args.max_steps} env steps")
-        hdr = f"{'contender':22s} {'reached':>8s}  {'wall s to 0.9: median [min, max]':>40s}  {'env steps to 0.9: median [min, max]':>40s}"
+        hdr = (f"{'contender':22s} {'reached':>8s}  {'wall s to 0.9: median [min, max]':>36s}  "
+               f"{'CPU s to 0.9: median [min, max]':>36s}  {'env steps to 0.9: median [min, max]':>38s}")
         print(hdr)
         print("-" * len(hdr))
         for c, st in s["contenders"].items():
             err = f"  ({st['errors']} failed)" if st["errors"] else ""
-            print(f"{NAMES[c]:22s} {st['reached']:>3d}/{st['runs']:<4d}  {_range(st['wall_s'], 1):>40s}  "
-                  f"{_range(st['env_steps'], 0):>40s}{err}")
+            print(f"{NAMES[c]:22s} {st['reached']:>3d}/{st['runs']:<4d}  {_range(st['wall_s'], 1):>36s}  "
+                  f"{_range(st['cpu_s'], 1):>36s}  {_range(st['env_steps'], 0):>38s}{err}")
         for convention, by_key in s["fastest_peer_over_ours"].items():
-            for key, label in (("wall_s", "median wall s"), ("env_steps", "median env steps")):
+            for key, label in (("wall_s", "median wall s"), ("cpu_s", "median CPU s"), ("env_steps", "median env steps")):
                 r = by_key.get(key)
                 if r is None:
                     continue
-                peer, d = NAMES[r["fastest_peer"]], 1 if key == "wall_s" else 0
+                peer, d = NAMES[r["fastest_peer"]], 0 if key == "env_steps" else 1
                 head = f"fastest peer / ours ({convention}), {label}:"
                 if r["ratio"] is not None:
                     ci = r.get("ratio_ci95")
@@ -364,6 +371,47 @@ def write_json(path: str, doc: dict) -> None:
     atomic_write_json(path, _jsonable(doc))
 
 
+def combine(paths, out: str) -> int:
+    """One raw file from several of one bench split across processes: their runs together, the summary
+    recomputed. Refuses (exit 2, nothing written) unless every file is complete and they agree on everything
+    but their seeds."""
+    import json
+    docs = []
+    for path in paths:
+        try:
+            with open(path) as f:
+                docs.append(json.load(f))
+        except (OSError, ValueError) as e:
+            print(f"error: --combine {path}: {e}", file=sys.stderr)
+            return 2
+    same = ("threshold", "tasks", "contenders", "max_steps", "eval_every", "eval_episodes", "preset",
+            "ours_overrides", "versions")
+    for path, d in zip(paths, docs):
+        bad = [k for k in same if d["settings"].get(k) != docs[0]["settings"].get(k)]
+        if not d.get("complete") or bad or d["machine"]["cpu"] != docs[0]["machine"]["cpu"]:
+            why = "is not complete" if not d.get("complete") else f"differs from {paths[0]} in {bad or ['cpu']}"
+            print(f"error: --combine {path} {why}", file=sys.stderr)
+            return 2
+    seeds = [s for d in docs for s in d["settings"]["seeds"]]
+    if len(set(seeds)) != len(seeds):
+        print(f"error: --combine: a seed appears twice ({sorted(seeds)})", file=sys.stderr)
+        return 2
+    runs = [r for d in docs for r in d["runs"]]
+    doc = dict(docs[0], runs=runs, combined_from=[os.path.relpath(p_, REPO) for p_ in paths],
+               argv=[a for d in docs for a in (d["argv"] + ["|"])][:-1],
+               started=min(d["started"] for d in docs), finished=max(d["finished"] for d in docs),
+               machine=dict(docs[0]["machine"], processes=[d["machine"] for d in docs]))
+    doc["settings"] = dict(docs[0]["settings"], seeds=sorted(seeds))
+    tasks, contenders = doc["settings"]["tasks"], doc["settings"]["contenders"]
+    doc["summary"] = summarize(runs, tasks, contenders)
+    write_json(out, doc)
+    args = argparse.Namespace(eval_episodes=doc["settings"]["eval_episodes"], eval_every=doc["settings"]["eval_every"],
+                              max_steps=doc["settings"]["max_steps"])
+    print_summary(doc["summary"], doc["settings"]["episodes"], args)
+    print(f"\n# combined {len(paths)} raw files ({len(runs)} runs) into {os.path.relpath(out)}")
+    return 0
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--tasks", default=",".join(TASKS), help="comma-separated task ids")
@@ -379,7 +427,12 @@ def main(argv=None) -> int:
                         f"its own convention, episodes that do not end on success; ours_fixed: ours so too)")
     p.add_argument("--preset", default="quick", help="the sweep preset ours is built from (default quick)")
     p.add_argument("--out", default=DEFAULT_OUT, help="raw results JSON (default bench/results/time_to_success.json)")
+    p.add_argument("--combine", nargs="+", metavar="RAW.json",
+                   help="write --out as these complete raw files' runs together (one machine, one commit, the "
+                        "same settings; e.g. two processes that ran different seeds side by side), no new runs")
     args = p.parse_args(argv)
+    if args.combine:
+        return combine(args.combine, args.out)
     tasks = [t for t in args.tasks.split(",") if t]
     contenders = [c for c in args.contenders.split(",") if c]
     bad = [c for c in contenders if c not in CONTENDERS]
@@ -447,6 +500,7 @@ def main(argv=None) -> int:
                     hit = next((pt for pt in res["curve"] if pt["eval_success_rate"] >= THRESHOLD), None)
                     rec["wall_s_to_threshold"] = hit["wall_s"] if hit else None
                     rec["env_steps_to_threshold"] = hit["env_steps"] if hit else None
+                    rec["cpu_s_to_threshold"] = hit["cpu_s"] if hit else None
                     last = res["curve"][-1] if res["curve"] else {"eval_success_rate": float("nan")}
                     status = (f"0.9 at {hit['env_steps']} env steps, {hit['wall_s']:.1f} s" if hit else
                               f"not reached in {res['env_steps_total']} env steps ({res['wall_s_total']:.1f} s; "
