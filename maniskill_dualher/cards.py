@@ -1,5 +1,9 @@
-"""Model cards of the committed policies: ``results/policies/<task>/<method>/README.md``, written from the folder's
+"""Model cards of the committed policies: ``results/policies/<task>/<folder>/README.md``, written from the folder's
 ``policy.json`` alone, so a card says what its ``policy.json`` says (``tests/test_cards.py`` holds each card to it).
+
+A folder is named ``<method>`` (one single-task run, its ``policy_best.pt``) or ``<method>_after_transfer``
+(``folder_name``: the adaptation stage of a transfer chain, its final ``policy.pt``; ``policy.json`` then holds a
+``transfer`` entry: the chain, each stage's env steps, the preset, the sweep command, the stage's run folder).
 
 ``policy.json`` holds how the policy was made and scored (command, commit, machine, versions, the held-out
 evaluation); ``sync_policy_json`` adds what the policy file itself carries: its interface (observation layout,
@@ -33,6 +37,15 @@ CITATION = """@article{beyene2022prioritized,
   author  = {Beyene, Sofanit Wubeshet and Han, Ji-Hyeong},
   journal = {Electronics}, volume = {11}, number = {24}, pages = {4192}, year = {2022}
 }"""
+
+
+TRANSFER, AFTER_TRANSFER = "transfer", "_after_transfer"
+
+
+def folder_name(doc: dict) -> str:
+    """The folder a policy.json belongs in under ``results/policies/<task>/``: its method, plus ``_after_transfer``
+    for a chain's adapted policy."""
+    return doc["method"] + (AFTER_TRANSFER if TRANSFER in doc else "")
 
 
 def interface_of(policy) -> Dict[str, object]:
@@ -74,12 +87,21 @@ def score_line(doc: dict) -> str:
             f"[{lo:.3f}, {hi:.3f}], on reset seeds {h['seeds']}")
 
 
-def _settings_rows(cfg: dict) -> List[str]:
+def _env_steps(cfg: dict, transfer: Optional[dict]) -> str:
+    if not transfer:
+        return str(cfg.get("total_steps"))
+    before = ", then ".join(f"{t} {n}" for t, n in zip(transfer["chain"][:-1], transfer["stage_env_steps"][:-1]))
+    carried = "networks and replay" if transfer.get("carry_replay") else "networks"
+    return (f"{cfg.get('total_steps')} in this adaptation stage, after the source stages {before} "
+            f"(each stage starts from the one before: its {carried})")
+
+
+def _settings_rows(cfg: dict, transfer: Optional[dict] = None) -> List[str]:
     sac, rep = cfg.get("sac", {}), cfg.get("replay", {})
     learned = (sac.get("variant") == "modern") if sac.get("learn_alpha") is None else bool(sac["learn_alpha"])
     alpha = f"learned from {sac.get('alpha')}" if learned else f"fixed {sac.get('alpha')}"
     rows = [("method", f"{_method_display(cfg['method'])} (`{cfg['method']}`)"), ("seed", cfg.get("seed")),
-            ("env steps", cfg.get("total_steps")), ("episode", f"at most {cfg.get('max_episode_steps')} steps, "
+            ("env steps", _env_steps(cfg, transfer)), ("episode", f"at most {cfg.get('max_episode_steps')} steps, "
              + ("ends on success" if cfg.get("terminate_on_success") else "fixed length")),
             ("simulation", f"{cfg.get('sim_backend')}, {cfg.get('num_envs')} env, {cfg.get('reward_mode')} reward"),
             ("SAC", f"{sac.get('variant')}, hidden {'x'.join(map(str, sac.get('hidden', [])))}, lr {sac.get('lr')}, "
@@ -98,6 +120,24 @@ def _settings_rows(cfg: dict) -> List[str]:
     return [f"| {k} | {v} |" for k, v in rows]
 
 
+def _transfer_policy(t: dict, doc: dict) -> str:
+    b = t["best_train_eval"]
+    prior = ", the prior it started from" if b["env_steps"] == 0 else ""
+    return (f"the **final** policy of the transfer chain's adaptation stage (its state at the end of adaptation, "
+            f"env step {doc['policy_env_steps']}: what the transfer claims measure), not the stage's "
+            f"`policy_best.pt` (its best training evaluation: {b['success']} at env step {b['env_steps']}{prior})")
+
+
+def _transfer_seeds(t: dict, cfg: dict) -> List[str]:
+    return [f"**Seeds: this folder is one run (seed {cfg.get('seed')}) of the {t['preset']} preset's chain.** Seed 0 is the rule, fixed before any result was seen, and shipped whatever it scored (no "
+            "seed was picked for its score). It shows what one run reached, not the spread over seeds; the "
+            "transfer results over many seeds are in `results/reference/table5_multitask.csv` "
+            f"(experiment `{t['experiment']}`).", "",
+            f"The reference's sweep has the same run folder (`{t['run']}`), trained there on "
+            f"{t['reference_machine']}; runs are not bit-identical across CPUs, so its scores in "
+            "`results/reference/scores.csv` may differ from this run's."]
+
+
 def card_text(doc: dict) -> str:
     """A model card from a policy.json (after ``sync_policy_json``)."""
     task, method = doc["task"], doc["method"]
@@ -106,8 +146,10 @@ def card_text(doc: dict) -> str:
     width = itf["observation_width"] - 2 * itf["goal_dim"]
     layout = " | ".join(f"{n} ({w})" for n, w in slots.items()) if slots else f"observation ({width})"
     g = itf["goal_dim"]
+    t = doc.get(TRANSFER)
+    before = " -> ".join(t["chain"][:-1]) if t else ""
     lines = [
-        f"# Model card: {_method_display(method)} on {task}",
+        f"# Model card: {_method_display(method)} on {task}" + (f", adapted after {before}" if t else ""),
         "",
         "Generated from this folder's `policy.json` by `python -m maniskill_dualher.cards` (do not edit by hand).",
         "",
@@ -116,7 +158,8 @@ def card_text(doc: dict) -> str:
         f"* **Task**: `{task}` (ManiSkill3, Franka Panda; this repository's `tasks/`): success is "
         f"{SUCCESS.get(task, 'as the task defines it')}.",
         f"* **Policy**: `policy.pt`, a tanh-Gaussian actor ({' x '.join(map(str, itf['hidden']))} hidden units), "
-        f"its run's best training evaluation; acting is deterministic (the Gaussian's mean).",
+        + (_transfer_policy(t, doc) if t else "its run's best training evaluation")
+        + "; acting is deterministic (the Gaussian's mean).",
         f"* **Observation**: `obs_mode=\"state\"`, a flat vector of {itf['observation_width']}: [{layout} | "
         f"achieved goal ({g}) | desired goal ({g})]. The policy reads observation ‖ desired goal "
         f"({itf['policy_input_width']}); `Policy.act` takes either. Slots a task has no object for are zeros.",
@@ -128,24 +171,31 @@ def card_text(doc: dict) -> str:
         "## Score",
         "",
         f"Held out: {score_line(doc)} (seeds no training evaluation used), mean episode length "
-        f"{h['mean_episode_length']} steps; `{h['command']}` reproduces it. Its training evaluation at env step "
-        f"{doc['policy_env_steps']}: {doc['policy_train_eval_success']} success on 10 episodes (the ones that "
-        "chose it, so optimistic).",
+        f"{h['mean_episode_length']} steps; `{h['command']}` reproduces it. "
+        + (f"Its last training evaluation, at env step {doc['policy_env_steps']}: {doc['policy_train_eval_success']} "
+           "success on 10 episodes (no evaluation chose this policy)." if t else
+           f"Its training evaluation at env step {doc['policy_env_steps']}: {doc['policy_train_eval_success']} "
+           "success on 10 episodes (the ones that chose it, so optimistic)."),
         "",
-        f"**Seeds: this folder is one training run (seed {cfg.get('seed')}).** It shows what one run reached, not "
-        "the spread over seeds; the single-task results over many seeds are in `results/reference/single_task.csv` "
-        "(reference preset).",
+        *(_transfer_seeds(t, cfg) if t else [
+            f"**Seeds: this folder is one training run (seed {cfg.get('seed')}).** It shows what one run reached, "
+            "not the spread over seeds; the single-task results over many seeds are in "
+            "`results/reference/single_task.csv` (reference preset)."]),
         "",
         "## Training settings",
         "",
         "| setting | value |",
         "|---|---|",
-        *_settings_rows(cfg),
+        *_settings_rows(cfg, t),
         "",
-        f"All of them: `policy.json` → `{SETTINGS}` (the run's `RunConfig`).",
+        f"All of them: `policy.json` → `{SETTINGS}` (the "
+        + ("adaptation stage's" if t else "run's") + " `RunConfig`).",
         "",
         "## How it was made",
         "",
+        *([f"The transfer chain {' -> '.join(t['chain'])} of the {t['preset']} preset's `{t['experiment']}` "
+           f"experiment, one run (seed {cfg.get('seed')}); this folder's `policy.pt` is the adaptation stage's "
+           f"final `policy.pt` (run folder `{t['run']}` of the sweep):", ""] if t else []),
         "```bash",
         doc["command"].replace("; ", "\n"),
         "```",
@@ -160,10 +210,14 @@ def card_text(doc: dict) -> str:
         "(one observation layout), a starting point for fine-tuning.",
         "* Simulation only: state observations of ManiSkill3's CPU simulation, never images or a real robot; "
         "other ManiSkill or SAPIEN versions may change the physics and the score.",
-        f"* Trained on `{task}` alone, at one budget and one seed; zero-shot on the other tasks, earlier runs of "
-        "the same settings and seed: `results/movies/zero_shot.csv` (a reaching policy closes the box, most other "
-        "pairs fail).",
-        "* Chosen by its own training evaluations (10 episodes), so only the held-out score above is unbiased.",
+        *([f"* Adapted on `{task}` after {before}, at one budget and one seed: one chain's outcome, a failure "
+           "included, not what the method does on average.",
+           "* The final policy, chosen by no evaluation, so its training evaluations do not bias the held-out "
+           "score; a better policy may have existed earlier in the stage (`policy_best.pt`, not shipped)."] if t else [
+            f"* Trained on `{task}` alone, at one budget and one seed; zero-shot on the other tasks, earlier runs "
+            "of the same settings and seed: `results/movies/zero_shot.csv` (a reaching policy closes the box, most "
+            "other pairs fail).",
+            "* Chosen by its own training evaluations (10 episodes), so only the held-out score above is unbiased."]),
         "",
         "## Licence and citation",
         "",

@@ -40,8 +40,36 @@ def test_policy_json_settings_are_the_policy_files(folder):
     """policy.json's interface and training settings are what policy.pt carries (loaded with weights_only)."""
     assert cards.sync_policy_json(folder, write=False) is False, "regenerate: python -m maniskill_dualher.cards"
     doc = json.loads((folder / "policy.json").read_text())
-    assert doc[cards.SETTINGS]["method"] == doc["method"] == folder.name
+    assert doc[cards.SETTINGS]["method"] == doc["method"] and cards.folder_name(doc) == folder.name
     assert doc[cards.INTERFACE]["env_id"] == doc["task"] == folder.parent.name
+
+
+TRANSFER = [f for f in FOLDERS if f.name.endswith(cards.AFTER_TRANSFER)]
+
+
+def test_the_transfer_chain_s_adapted_policies_are_here():
+    """Issue 43: the chain's adapted CloseMicrowave policies of both methods, seed 0 (the rule, whatever it scored)."""
+    assert {(f.parent.name, f.name) for f in TRANSFER} >= {("CloseMicrowave-v1", "dual_buffer_after_transfer"),
+                                                           ("CloseMicrowave-v1", "sac_her_per_after_transfer")}
+
+
+@pytest.mark.parametrize("folder", TRANSFER, ids=lambda p: f"{p.parent.name}/{p.name}")
+def test_an_adapted_policy_is_the_final_one_and_its_card_says_how_it_was_made(folder):
+    """The policy is the adaptation stage's final policy (the end of adaptation, what the transfer claims measure),
+    and the card names the chain, the preset, the sweep command, the one run, its seed and the held-out score."""
+    from maniskill_dualher.policy import load_policy
+    doc = json.loads((folder / "policy.json").read_text())
+    t, card, pol = doc[cards.TRANSFER], (folder / "README.md").read_text(), load_policy(folder)
+    assert t["policy"] == "final" and t["chain"][-1] == doc["task"] and t["preset"] == "reference"
+    assert pol.env_steps == pol.config["total_steps"] == t["stage_env_steps"][-1] == doc["policy_env_steps"]
+    assert pol.config["seed"] == t["seed"] == 0
+    assert t["sweep_command"].startswith("python -m maniskill_dualher.sweep --preset reference --experiments transfer")
+    assert doc["command"].startswith(t["sweep_command"] + "; cp OUT/" + t["run"] + "/policy.pt ")
+    for words in (f"adapted after {' -> '.join(t['chain'][:-1])}", "reference preset", t["sweep_command"],
+                  "the **final** policy", "not the stage's `policy_best.pt`", "one run (seed 0)",
+                  "Seed 0 is the rule", doc["held_out_evaluation"]["command"]):
+        assert words in card, words
+    assert len(SCORE.findall(card)) == 1
 
 
 def test_the_card_follows_policy_json(tmp_path):

@@ -419,8 +419,8 @@ def test_committed_policies_are_small_documented_and_load():
         assert p.stat().st_size < 200_000, p
         doc = json.loads((p.parent / "policy.json").read_text())
         pol = load_policy(p.parent)
-        assert (doc["task"], doc["method"]) == (pol.env_id, pol.config["method"]) == (p.parent.parent.name,
-                                                                                      p.parent.name)
+        folder = p.parent.name.removesuffix("_after_transfer") if "transfer" in doc else p.parent.name
+        assert (doc["task"], doc["method"]) == (pol.env_id, pol.config["method"]) == (p.parent.parent.name, folder)
         h = doc["held_out_evaluation"]
         assert int(h["seeds"].split("..")[0]) == HELDOUT_SEED_BASE and h["successes"] <= h["episodes"]
         assert "checkpoint" not in pol.meta and set(torch.load(p, weights_only=True)) >= {"actor", "input_dim"}
