@@ -94,9 +94,10 @@ def our_config(task: str, seed: int, args, fixed_length: bool = False):
     peers' own convention; evaluation unchanged)."""
     from maniskill_dualher.experiment.presets import PRESETS
     cfg = PRESETS[args.preset].single_config("sac_her_per", seed, task)
-    if getattr(args, "overrides", ()):
+    extra = tuple(getattr(args, "overrides", ())) + (tuple(getattr(args, "fixed_overrides", ())) if fixed_length else ())
+    if extra:
         from maniskill_dualher.experiment import overrides
-        cfg = overrides.apply(cfg, args.overrides)
+        cfg = overrides.apply(cfg, extra)
     if fixed_length:
         cfg.terminate_on_success = False
     cfg.total_steps = args.max_steps
@@ -385,7 +386,7 @@ def combine(paths, out: str) -> int:
             print(f"error: --combine {path}: {e}", file=sys.stderr)
             return 2
     same = ("threshold", "tasks", "contenders", "max_steps", "eval_every", "eval_episodes", "preset",
-            "ours_overrides", "versions")
+            "ours_overrides", "ours_fixed_overrides", "versions")
     for path, d in zip(paths, docs):
         bad = [k for k in same if d["settings"].get(k) != docs[0]["settings"].get(k)]
         if not d.get("complete") or bad or d["machine"]["cpu"] != docs[0]["machine"]["cpu"]:
@@ -419,6 +420,8 @@ def main(argv=None) -> int:
     p.add_argument("--seed-start", type=int, default=0, help="the first seed (default 0: seeds 0..N-1)")
     p.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
                    help="an override of ours' settings (ours and ours_fixed), as `sweep --set`; repeatable")
+    p.add_argument("--fixed-set", dest="fixed_sets", action="append", default=[], metavar="KEY=VALUE",
+                   help="an override for ours_fixed only (ours' declared fixed-length setting); repeatable")
     p.add_argument("--max-steps", type=int, default=30_000, help="env-step cap per run (default 30000)")
     p.add_argument("--eval-every", type=int, default=1000, help="env steps between evaluations (default 1000)")
     p.add_argument("--eval-episodes", type=int, default=10, help="fixed evaluation episodes (default 10)")
@@ -444,6 +447,7 @@ def main(argv=None) -> int:
     from maniskill_dualher.experiment import overrides
     try:
         args.overrides = overrides.parse_all(args.sets)
+        args.fixed_overrides = overrides.parse_all(args.fixed_sets)
     except ConfigError as e:
         p.error(str(e))
     seeds = list(range(args.seed_start, args.seed_start + args.seeds))
@@ -462,6 +466,9 @@ def main(argv=None) -> int:
     print(f"# cpu: {cpu_name()}")
     print(f"# threads: {thread_info()}")
     print(f"# load average at start: {loadavg()}")
+    if args.fixed_overrides:
+        print(f"# ours, fixed-length: also {' '.join(o.text() for o in args.fixed_overrides)}: "
+              f"{describe_ours(our_config(tasks[0], 0, args, fixed_length=True))}")
     print(f"# ours: {args.preset!r} preset, sac_her_per"
           f"{' with ' + ' '.join(o.text() for o in args.overrides) if args.overrides else ''}: "
           f"{describe_ours(our_config(tasks[0], 0, args))}")
@@ -478,6 +485,7 @@ def main(argv=None) -> int:
            "machine": {"cpu": cpu_name(), "threads": thread_info(), "loadavg_start": loadavg()},
            "settings": {"threshold": THRESHOLD, "tasks": tasks, "seeds": seeds,
                         "ours_overrides": [o.text() for o in args.overrides],
+                        "ours_fixed_overrides": [o.text() for o in args.fixed_overrides],
                         "shared": shared_settings(our_config(tasks[0], 0, args)),
                         "contenders": contenders, "max_steps": args.max_steps, "eval_every": args.eval_every,
                         "eval_episodes": args.eval_episodes, "preset": args.preset, "peers": ZOO,

@@ -35,8 +35,10 @@ def test_overrides_reach_ours_and_bad_keys_are_one_line_exit_2(tmp_path):
     tts = _bench()
     args = argparse.Namespace(preset="quick", max_steps=300, eval_every=300, eval_episodes=1,
                               overrides=overrides.parse_all(["sac.alpha=1", "replay.priority_exponent=0"]))
+    args.fixed_overrides = overrides.parse_all(["sac.tau=0.01"])
     cfg = tts.our_config("CloseBox-v1", 3, args, fixed_length=True)
     assert cfg.sac.alpha == 1.0 and cfg.replay.priority_exponent == 0.0 and cfg.seed == 3
+    assert cfg.sac.tau == 0.01 and tts.our_config("CloseBox-v1", 3, args).sac.tau != 0.01  # ours_fixed only
     assert cfg.terminate_on_success is False and cfg.total_steps == 300
     shared = tts.shared_settings(cfg)
     assert shared["temperature"]["ours"] == "learned, starts 1" and shared["temperature"]["equal"]
