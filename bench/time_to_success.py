@@ -476,8 +476,9 @@ def main(argv=None) -> int:
     if peers:
         print(f"# peers ({'; '.join(lib_version(peer_library(c)) for c in peers)}): " + ", ".join(f"{k} {v}" for k, v in ZOO.items()))
 
-    print("# shared settings (ours | peers):")
-    for k, v in shared_settings(our_config(tasks[0], 0, args)).items():
+    fixed_only = "ours_fixed" in contenders and "ours" not in contenders
+    print(f"# shared settings ({'ours, fixed-length' if fixed_only else 'ours'} | peers):")
+    for k, v in shared_settings(our_config(tasks[0], 0, args, fixed_length=fixed_only)).items():
         print(f"#   {k:36s} {str(v['ours']):48s} | {v['peers']}{'' if v['equal'] else '   (differs)'}")
     rules_by_task = {}
     doc = {"bench": "time_to_success", "version": 1, "complete": False, "started": _now(), "finished": None,
@@ -487,6 +488,7 @@ def main(argv=None) -> int:
                         "ours_overrides": [o.text() for o in args.overrides],
                         "ours_fixed_overrides": [o.text() for o in args.fixed_overrides],
                         "shared": shared_settings(our_config(tasks[0], 0, args)),
+                        "shared_fixed": shared_settings(our_config(tasks[0], 0, args, fixed_length=True)),
                         "contenders": contenders, "max_steps": args.max_steps, "eval_every": args.eval_every,
                         "eval_episodes": args.eval_episodes, "preset": args.preset, "peers": ZOO,
                         "versions": {c: lib_version(peer_library(c)) for c in peers}, "episodes": {}},
