@@ -22,7 +22,11 @@ episodes of that length that do not end on success (evaluation as for everyone);
 too (``terminate_on_success=False``). Three comparisons, each the fastest peer's median over ours': equal
 semantics (ours vs sb3, sbx: "which code learns this MDP faster"), fixed-length episodes (ours_fixed vs
 sb3_own, sbx_own: the same question at the peers' convention), and each at its own convention (ours vs
-sb3_own, sbx_own: "how long would a user of each library wait").
+sb3_own, sbx_own: "how long would a user of each library wait"). ``ours_fixed`` takes ours' one declared
+fixed-length setting (``OURS_FIXED``: the temperature starts at 1.0; ``--fixed-set`` replaces it), the same on
+every task. ``--set`` changes ours' settings (both conventions); ``--seed-start`` and ``--combine`` split seeds
+over processes and pool their raw files; every ratio gets a percentile bootstrap interval over seeds; time to
+the threshold is given in wall time, process CPU time and env steps.
 
 Evaluation: 10 fixed episodes (``--eval-episodes``) every ``--eval-every`` env steps (default 1000),
 deterministic policy, reset seeds ``maniskill_dualher.envs.EVAL_SEED_BASE + i`` for all contenders (the
@@ -250,6 +254,9 @@ def _stats(xs):
     return {"median": float(np.median(vals)), "min": float(vals[0]), "max": float(vals[-1]), "n": len(vals)}
 
 
+# ours' one fixed-length setting for every task, declared before the equal-rules race (docs/speed.md: the
+# temperature starts at 1.0, as the peers' does; the ablation in bench/results/fixed_length_ablation/)
+OURS_FIXED = ("sac.alpha=1",)
 KEYS = ("wall_s", "cpu_s", "env_steps")  # time to the threshold: wall clock, process CPU time, env steps
 BOOT = 10_000  # bootstrap resamples for the ratio of medians
 
@@ -420,8 +427,9 @@ def main(argv=None) -> int:
     p.add_argument("--seed-start", type=int, default=0, help="the first seed (default 0: seeds 0..N-1)")
     p.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
                    help="an override of ours' settings (ours and ours_fixed), as `sweep --set`; repeatable")
-    p.add_argument("--fixed-set", dest="fixed_sets", action="append", default=[], metavar="KEY=VALUE",
-                   help="an override for ours_fixed only (ours' declared fixed-length setting); repeatable")
+    p.add_argument("--fixed-set", dest="fixed_sets", action="append", default=None, metavar="KEY=VALUE",
+                   help="an override for ours_fixed only; repeatable (default: ours' declared fixed-length setting, "
+                        f"{' '.join(OURS_FIXED)}; --fixed-set none: the preset as is)")
     p.add_argument("--max-steps", type=int, default=30_000, help="env-step cap per run (default 30000)")
     p.add_argument("--eval-every", type=int, default=1000, help="env steps between evaluations (default 1000)")
     p.add_argument("--eval-episodes", type=int, default=10, help="fixed evaluation episodes (default 10)")
@@ -447,7 +455,8 @@ def main(argv=None) -> int:
     from maniskill_dualher.experiment import overrides
     try:
         args.overrides = overrides.parse_all(args.sets)
-        args.fixed_overrides = overrides.parse_all(args.fixed_sets)
+        fixed = OURS_FIXED if args.fixed_sets is None else [x for x in args.fixed_sets if x.lower() != "none"]
+        args.fixed_overrides = overrides.parse_all(fixed)
     except ConfigError as e:
         p.error(str(e))
     seeds = list(range(args.seed_start, args.seed_start + args.seeds))
