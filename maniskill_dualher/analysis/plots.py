@@ -134,8 +134,9 @@ def draw(ax, groups: Dict[str, Tuple[Dict[int, Dict[int, dict]], str, str, str]]
     """``groups``: legend label -> (seed -> step -> row, colour, line style, marker); ``with_n``: seeds in the label."""
     for label, (by_seed, color, ls, marker) in groups.items():
         x, m, lo, hi = mean_band(by_seed, key)
+        # at most ~16 markers a curve: on a long curve, markers at every point hide its line style
         ax.plot(x, m, marker=marker, ms=2.5, lw=1.4, label=f"{label} (n={len(by_seed)})" if with_n else label,
-                color=color, linestyle=ls)
+                color=color, linestyle=ls, markevery=max(1, len(x) // 16))
         ax.fill_between(x, lo, hi, color=color, alpha=0.15, lw=0)
     for label, by_seed in (reference or {}).items():
         x, m, _, _ = mean_band(by_seed, key)
