@@ -232,6 +232,10 @@ class FusedUpdate:
         # per agent, which of its parameters a critic-only batch leaves without a step (actor, log alpha)
         self.policy_ids = [{id(p) for p in s.policy_parameters()} for s in self.sacs]
         self._plans: List[Optional[tuple]] = [None] * len(self.sacs)  # per agent, _adam_plan's cache
+        # per agent and batch kind (critic-only or not): which of params_of[i] Adam steps; and _adam_lists' cache
+        self._moves = [{False: [True] * len(ps), True: [id(p) not in pol for p in ps]}
+                       for ps, pol in zip(self.params_of, self.policy_ids)]
+        self._lists: Dict[tuple, tuple] = {}
         self.compute = self._compute
         if sac.cfg.compile:  # compute draws nothing (``draws`` are made outside it): nothing random to compile
             self.compute = torch.compile(self._compute, dynamic=False)
@@ -272,10 +276,12 @@ class FusedUpdate:
         """(S * 2, B, 1) critic outputs -> min over each agent's two critics: (values (S, B), member (S, B))."""
         return q.view(-1, self.q.per_agent, q.shape[1]).min(1)
 
-    def _compute(self, obs, act, rew, next_obs, done, w, pi_obs, log_alpha, eps):
+    def _compute(self, obs, act, rew, next_obs, done, w, pi_obs, log_alpha, eps, want_terms: bool = True):
         """-> (gradients of self.params stacked over the pack, |TD| summed over critics (S, B), the loss terms
         (S,) for the logs). ``pi_obs``: the actor's own batch, or None for the critic batch; ``eps``: the
-        update's standard-normal draws (``draw_shapes``), stacked over the pack, or None to draw them here."""
+        update's standard-normal draws (``draw_shapes``), stacked over the pack, or None to draw them here;
+        ``want_terms``: compute the loss terms (only read when a run logs: ~15 small ops an update saved
+        otherwise; the gradients do not depend on them)."""
         sac, cfg = self.sac, self.sac.cfg
         for net in self.nets:
             net.refresh()
@@ -317,15 +323,18 @@ class FusedUpdate:
         g_a = g_a.view(-1, self.q.per_agent, n_pi, g_a.shape[-1]).sum(1)
         self.policy_backward(saved_pi, g_a, alpha * coef, grads)
 
-        sq = 0.5 * td.pow(2).sum(1)
-        actor_terms = alpha * logp_pi - q_pi
-        terms = {
-            "losses/qf_loss": (w * sq).mean(-1) if w is not None else sq.mean(-1),
-            "losses/actor_loss": (actor_w * actor_terms).mean(-1) if actor_w is not None else actor_terms.mean(-1),
-            "losses/alpha": alpha[:, 0],
-            "losses/entropy": -logp_pi.mean(-1),
-            "losses/qf_values": q_sa.view(len(sq), -1).mean(-1),
-        }
+        terms: Dict[str, torch.Tensor] = {}
+        if want_terms:
+            sq = 0.5 * td.pow(2).sum(1)
+            actor_terms = alpha * logp_pi - q_pi
+            terms = {
+                "losses/qf_loss": (w * sq).mean(-1) if w is not None else sq.mean(-1),
+                "losses/actor_loss": (actor_w * actor_terms).mean(-1) if actor_w is not None
+                else actor_terms.mean(-1),
+                "losses/alpha": alpha[:, 0],
+                "losses/entropy": -logp_pi.mean(-1),
+                "losses/qf_values": q_sa.view(len(sq), -1).mean(-1),
+            }
         if sac.paper:  # V(s) <- min_e Q_e(s, a~pi) - alpha log pi (Eq. 4)
             v_target = q_pi - alpha * logp_pi
             if separate_actor_batch:  # V trains on the critic batch; a fresh action there
@@ -335,12 +344,14 @@ class FusedUpdate:
             v_err = v_pred.squeeze(-1) - v_target
             g_v = v_err * (w / n_critic) if w is not None else v_err / n_critic
             self.v.backward(v_inputs, g_v.unsqueeze(-1), grads)
-            v_sq = 0.5 * v_err.pow(2)
-            terms["losses/v_loss"] = (w * v_sq).mean(-1) if w is not None else v_sq.mean(-1)
+            if want_terms:
+                v_sq = 0.5 * v_err.pow(2)
+                terms["losses/v_loss"] = (w * v_sq).mean(-1) if w is not None else v_sq.mean(-1)
         if sac.learn_alpha:  # alpha loss -mean(log alpha (log pi + target entropy))
             g_alpha = -(logp_pi + sac.target_entropy).mean(-1)
             grads.append(g_alpha[0] if len(g_alpha) == 1 else g_alpha)
-            terms["losses/alpha_loss"] = -(log_alpha.unsqueeze(-1) * (logp_pi + sac.target_entropy)).mean(-1)
+            if want_terms:
+                terms["losses/alpha_loss"] = -(log_alpha.unsqueeze(-1) * (logp_pi + sac.target_entropy)).mean(-1)
         return grads, td.abs().sum(1), terms
 
     def _apply(self, grads: List[torch.Tensor], critic_only: List[bool]) -> None:
@@ -361,9 +372,9 @@ class FusedUpdate:
         fused: Dict[tuple, List[List[torch.Tensor]]] = {}
         polyak: Dict[float, Tuple[List[torch.Tensor], List[torch.Tensor]]] = {}
         for i, sac in enumerate(self.sacs):
-            params, policy = self.params_of[i], self.policy_ids[i]
+            params = self.params_of[i]
             # Adam skips a parameter without a gradient: a critic-only batch moves no actor or alpha
-            moves = [not (critic_only[i] and id(p) in policy) for p in params]
+            moves = self._moves[i][bool(critic_only[i])]
             for p, g, m in zip(params, per_agent[i], moves):
                 p.grad = g if m else None
             plan = self._adam_plan(i)
@@ -372,11 +383,13 @@ class FusedUpdate:
             else:
                 key, state = plan
                 lists = fused.setdefault(key, [[], [], [], [], []])
-                for p, g, st, m in zip(params, per_agent[i], state, moves):
-                    if not m:
-                        continue
-                    for out, t in zip(lists, (p, g, st["exp_avg"], st["exp_avg_sq"], st["step"])):
-                        out.append(t)
+                idx, ps, ms, vs, steps = self._adam_lists(i, bool(critic_only[i]), state)
+                grads_i = per_agent[i]
+                lists[0] += ps
+                lists[1] += [grads_i[j] for j in idx]
+                lists[2] += ms
+                lists[3] += vs
+                lists[4] += steps
             tgt, onl = polyak.setdefault(sac.cfg.tau, ([], []))
             tgt += sac._target_params
             onl += sac._online_params
@@ -388,6 +401,19 @@ class FusedUpdate:
                                found_inf=None)
         for tau, (tgt, onl) in polyak.items():
             torch._foreach_lerp_(tgt, onl, tau)
+
+    def _adam_lists(self, i: int, critic_only: bool, state: List[dict]):
+        """(indices, parameters, exp_avg, exp_avg_sq, step) of agent i's moving parameters, in order, for
+        one ``_fused_adam_`` call: built once per state list (``_adam_plan``'s cache) and batch kind, not per
+        update (the tensors are stepped in place, so the lists stay valid)."""
+        key = (i, critic_only)
+        hit = self._lists.get(key)
+        if hit is None or hit[0] is not state:
+            idx = [j for j, m in enumerate(self._moves[i][critic_only]) if m]
+            params = self.params_of[i]
+            hit = self._lists[key] = (state, idx, [params[j] for j in idx], [state[j]["exp_avg"] for j in idx],
+                                      [state[j]["exp_avg_sq"] for j in idx], [state[j]["step"] for j in idx])
+        return hit[1:]
 
     def _adam_plan(self, i: int) -> Optional[Tuple[tuple, List[dict]]]:
         """(hyperparameters, state of each of ``params_of[i]``) when agent i's optimizer step is exactly one
@@ -451,7 +477,7 @@ class FusedUpdate:
         log_alpha = _stack([s.log_alpha.detach() for s in self.sacs])
         grads, td_abs, terms = self.compute(obs, stack("action", batches), stack("reward", batches),
                                             stack("next_obs", batches), stack("done", batches), w, pi_obs,
-                                            log_alpha, eps)
+                                            log_alpha, eps, want_logs)
         self._apply(grads, [b.critic_only for b in batches])
         td = td_abs.cpu().numpy()
         n = len(self.sacs)
