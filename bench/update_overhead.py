@@ -3,10 +3,14 @@
     python bench/update_overhead.py [--base DIR] [--packs 1,2,8] [--reps 5] [--updates 200] [--chunks 5]
                                     [--warmup 50] [--json FILE]
     python bench/update_overhead.py --precision-b bf16 [...]   # side B: this tree at another matmul precision
+    python bench/update_overhead.py --compile-b [...]          # side B: this tree with sac.compile (torch.compile)
 
 With ``--precision-b P`` (instead of ``--base``) side B is this tree with ``sac.matmul_precision = P`` (side A
 keeps the preset's strict fp32): issue 32's question whether the opt-in bf16 products speed up the 64x64 update.
 Its weights are not expected to equal A's (bf16 rounds), so the digests are reported, not required equal.
+``--compile-b`` likewise makes side B this tree with ``sac.compile = True`` (``torch.compile`` of the fused
+update, inductor; needs a C++ compiler): its compilation happens in the warm-up, and its products are inside
+compiled code where the product timers do not reach, so only its total is meaningful (products read 0).
 
 What one "update" is: one ``pack.Updater.round`` over S runs that are due together, as ``train.drive`` calls it:
 S agents with the quick preset's update settings (``dual_buffer``'s: modern SAC, learned alpha, 64x64, batch 256,
@@ -70,7 +74,7 @@ def _fail(run, e):
     raise e
 
 
-def worker(pack: int, updates: int, chunks: int, warmup: int, precision: str = "") -> dict:
+def worker(pack: int, updates: int, chunks: int, warmup: int, precision: str = "", compiled: bool = False) -> dict:
     import torch
     torch.set_num_threads(1)
     import maniskill_dualher
@@ -84,6 +88,9 @@ def worker(pack: int, updates: int, chunks: int, warmup: int, precision: str = "
     if precision:
         import dataclasses
         cfg = dataclasses.replace(cfg, sac=dataclasses.replace(cfg.sac, matmul_precision=precision))
+    if compiled:
+        import dataclasses
+        cfg = dataclasses.replace(cfg, sac=dataclasses.replace(cfg.sac, compile=True))
     B = cfg.sac.batch_size
     runs = []
     for i in range(pack):
@@ -146,11 +153,11 @@ def worker(pack: int, updates: int, chunks: int, warmup: int, precision: str = "
 
 
 # --------------------------------------------------------------------------- the parent
-def _run_worker(tree: Path, a, pack: int, precision: str = "") -> dict:
+def _run_worker(tree: Path, a, pack: int, precision: str = "", compiled: bool = False) -> dict:
     env = dict(os.environ, PYTHONPATH=str(tree), OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")
     cmd = [sys.executable, str(Path(__file__).resolve()), "--worker", "--pack", str(pack), "--updates",
            str(a.updates), "--chunks", str(a.chunks), "--warmup", str(a.warmup)] + (
-               ["--precision", precision] if precision else [])
+               ["--precision", precision] if precision else []) + (["--compile"] if compiled else [])
     r = subprocess.run(cmd, cwd=tree, env=env, capture_output=True, text=True)
     if r.returncode != 0:
         raise RuntimeError(f"worker in {tree} (pack {pack}) failed (exit {r.returncode}): "
@@ -200,13 +207,15 @@ def main(argv=None) -> int:
     p.add_argument("--chunks", type=int, default=5, help="timed chunks per process (default 5)")
     p.add_argument("--warmup", type=int, default=50, help="untimed updates first (default 50)")
     p.add_argument("--precision-b", help="side B: this tree with sac.matmul_precision set to this (e.g. bf16)")
+    p.add_argument("--compile-b", action="store_true", help="side B: this tree with sac.compile (torch.compile)")
     p.add_argument("--json", help="write the raw results here")
     p.add_argument("--precision", default="", help=argparse.SUPPRESS)
+    p.add_argument("--compile", action="store_true", help=argparse.SUPPRESS)
     p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     p.add_argument("--pack", type=int, default=1, help=argparse.SUPPRESS)
     a = p.parse_args(argv)
     if a.worker:
-        print(json.dumps(worker(a.pack, a.updates, a.chunks, a.warmup, a.precision)))
+        print(json.dumps(worker(a.pack, a.updates, a.chunks, a.warmup, a.precision, a.compile)))
         return 0
     try:
         packs = _ints(a.packs, "packs")
@@ -222,6 +231,8 @@ def main(argv=None) -> int:
             if a.base is not None or a.precision_b not in MATMUL_PRECISIONS:
                 raise ValueError(f"--precision-b must be one of {', '.join(MATMUL_PRECISIONS)} and not beside "
                                  f"--base, got {a.precision_b!r}")
+        if a.compile_b and (a.base is not None or a.precision_b is not None):
+            raise ValueError("--compile-b compares this tree with itself: not beside --base or --precision-b")
         if a.base is not None:
             base = Path(a.base).resolve()
             if not (base / "maniskill_dualher" / "sac_fused.py").is_file():
@@ -232,8 +243,10 @@ def main(argv=None) -> int:
 
     sys.path.insert(0, str(REPO))
     from maniskill_dualher.provenance import cpu_info, git_state, machine_label, machine_name
-    trees = {"A": REPO} if base is None and not a.precision_b else {"A": REPO, "B": base or REPO}
+    variant_b = bool(a.precision_b or a.compile_b)  # side B is this tree with another setting
+    trees = {"A": REPO} if base is None and not variant_b else {"A": REPO, "B": base or REPO}
     precisions = {"A": "", "B": a.precision_b or ""}
+    compiles = {"A": False, "B": a.compile_b}
     sides = "".join(trees)
     commits = {k: git_state(t) for k, t in trees.items()}
     load = " ".join(Path("/proc/loadavg").read_text().split()[:3]) if Path("/proc/loadavg").exists() else "?"
@@ -249,7 +262,7 @@ def main(argv=None) -> int:
         order = sides if rep % 2 == 0 else sides[::-1]
         for s in packs:
             for side in order:
-                r = _run_worker(trees[side], a, s, precisions[side])
+                r = _run_worker(trees[side], a, s, precisions[side], compiles[side])
                 r.update(side=side, rep=rep)
                 results.append(r)
                 print(f"  rep {rep} S={s} {side}: total {r['total_ms']:.3f} ms (cpu {r['cpu_ms']:.3f}), products "
@@ -272,11 +285,11 @@ def main(argv=None) -> int:
         doc = {"command": " ".join(["bench/update_overhead.py"] + (sys.argv[1:] if argv is None else list(argv))),
                "machine": machine_name(cpu), "cpu": machine_label(cpu), "cpu_info": cpu, "load_before": load,
                "trees": {k: str(t) for k, t in trees.items()}, "commits": commits, "packs": packs,
-               "precision_b": a.precision_b,
+               "precision_b": a.precision_b, "compile_b": a.compile_b,
                "reps": a.reps, "updates": a.updates, "chunks": a.chunks, "warmup": a.warmup,
                "results": results, "summary": summary, "weights_identical": identical}
         atomic_write_text(Path(a.json), json.dumps(doc, indent=1) + "\n")
-    return 0 if a.precision_b or all(identical.values()) else 1
+    return 0 if variant_b or all(identical.values()) else 1
 
 
 if __name__ == "__main__":

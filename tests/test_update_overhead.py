@@ -15,7 +15,8 @@ def _run(*args):
 def test_bad_input_is_one_line_exit_2(tmp_path):
     out = tmp_path / "x.json"
     for args in (["--packs", "0"], ["--packs", "1,x"], ["--reps", "0"], ["--updates", "-1"], ["--chunks", "0"],
-                 ["--warmup", "-2"], ["--base", str(tmp_path / "nowhere")], ["--precision-b", "fp8"]):
+                 ["--warmup", "-2"], ["--base", str(tmp_path / "nowhere")], ["--precision-b", "fp8"],
+                 ["--compile-b", "--base", str(tmp_path)]):
         r = _run(*args, "--json", str(out))
         assert r.returncode == 2, r.stderr
         assert len(r.stderr.strip().splitlines()) == 1 and args[1] in r.stderr
