@@ -9,8 +9,9 @@ With ``--precision-b P`` (instead of ``--base``) side B is this tree with ``sac.
 keeps the preset's strict fp32): issue 32's question whether the opt-in bf16 products speed up the 64x64 update.
 Its weights are not expected to equal A's (bf16 rounds), so the digests are reported, not required equal.
 ``--compile-b`` likewise makes side B this tree with ``sac.compile = True`` (``torch.compile`` of the fused
-update, inductor; needs a C++ compiler): its compilation happens in the warm-up, and its products are inside
-compiled code where the product timers do not reach, so only its total is meaningful (products read 0).
+update, inductor; needs a C++ compiler): its compilation happens in the warm-up; its products phase runs the
+compiled function with the product timers inside it (they break its graph), so only its total is meaningful,
+and its weights differ from A's (inductor fuses the elementwise ops and rounds differently).
 
 What one "update" is: one ``pack.Updater.round`` over S runs that are due together, as ``train.drive`` calls it:
 S agents with the quick preset's update settings (``dual_buffer``'s: modern SAC, learned alpha, 64x64, batch 256,
