@@ -2,7 +2,6 @@
 outcome line each, the next one runs, exit code), and the section checks themselves run for real on CPU
 simulation (one env) through the same functions the GPU check calls, passing, and failing when fed a
 wrong reward function, a moving panel, an out-of-range reset or a PhysX overflow line."""
-import importlib.util
 import os
 import subprocess
 import sys
@@ -13,16 +12,14 @@ import numpy as np
 import pytest
 import torch
 
+from bench_cli import load_bench
+
 REPO = Path(__file__).resolve().parents[1]
 SCRIPT = REPO / "bench" / "gpu_check.py"
 
 
 def _load():
-    spec = importlib.util.spec_from_file_location("gpu_check", SCRIPT)
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules["gpu_check"] = mod  # dataclasses look their module up
-    spec.loader.exec_module(mod)
-    return mod
+    return load_bench("gpu_check.py")
 
 
 gc = _load()

@@ -240,20 +240,7 @@ def test_no_import_circles_among_core_modules():
     files = {".".join(p.relative_to(REPO).with_suffix("").parts): p
              for p in (REPO / "maniskill_dualher").rglob("*.py") if p.name != "__init__.py"}
     graph = {m: {i for i in _imports(p, "maniskill_dualher") if i in files and i != m} for m, p in files.items()}
-    state = {}
-
-    def visit(m, path):
-        if state.get(m) == 1:
-            raise AssertionError("import circle: " + " -> ".join(path + [m]))
-        if state.get(m) == 2:
-            return
-        state[m] = 1
-        for n in graph[m]:
-            visit(n, path + [m])
-        state[m] = 2
-
-    for m in graph:
-        visit(m, [])
+    _no_cycle(graph)
     # the analysis reads the experiment registry and the plan (grid: configs per cell, plain config code, for
     # hyperparameters.csv) but never the runner side (backends, the sweep CLI, its lock, the timed cost, train)
     runner = ("maniskill_dualher.experiment.backends", "maniskill_dualher.experiment.sweep",

@@ -1,20 +1,14 @@
 """bench/sweep_ab.py: pair ratios and their interval, the A/A control's checks (no sweeps run here)."""
-import importlib.util
 import math
 import subprocess
 
-from bench_cli import ROOT, run_bench
+from bench_cli import ROOT, load_bench, run_bench
 
 
-def _ab():
-    spec = importlib.util.spec_from_file_location("sweep_ab", ROOT / "bench" / "sweep_ab.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
 
 
 def test_pairs_are_adjacent_sweeps_of_a_and_x_and_the_interval_holds_their_geometric_mean():
-    ab = _ab()
+    ab = load_bench("sweep_ab.py")
     walls = [100, 110, 101, 99, 102, 100, 112, 100]
     timed = [{"side": s, "wall_s": w} for s, w in zip("ABACCABA", walls)]
     assert ab.pair_ratios(timed, "B") == [1.1, round(110 / 101, 4), 1.12, 1.12]

@@ -1,23 +1,16 @@
 """bench/time_to_success.py: the ratio's bootstrap interval, overrides for ours, and combining raw files."""
-import importlib.util
 import json
 import math
 
 import numpy as np
-import pytest
 
-from bench_cli import ROOT, run_bench
+from bench_cli import load_bench, run_bench
 
 
-def _bench():
-    spec = importlib.util.spec_from_file_location("tts", ROOT / "bench" / "time_to_success.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
 
 
 def test_ratio_interval_holds_the_ratio_of_medians_and_opens_on_censoring():
-    tts = _bench()
+    tts = load_bench("time_to_success.py")
     peer, ours = [9000, 9000, 16000, 12000, 10000], [14000, 10000, 14000, 14000, 10000]
     lo, hi = tts.ratio_interval(peer, ours)
     point = np.median(peer) / np.median(ours)
@@ -32,7 +25,7 @@ def test_ratio_interval_holds_the_ratio_of_medians_and_opens_on_censoring():
 def test_overrides_reach_ours_and_bad_keys_are_one_line_exit_2(tmp_path):
     import argparse
     from maniskill_dualher.experiment import overrides
-    tts = _bench()
+    tts = load_bench("time_to_success.py")
     args = argparse.Namespace(preset="quick", max_steps=300, eval_every=300, eval_episodes=1,
                               overrides=overrides.parse_all(["sac.alpha=1", "replay.priority_exponent=0"]))
     args.fixed_overrides = overrides.parse_all(["sac.tau=0.01"])
@@ -63,7 +56,7 @@ def _raw(seeds, reached_at):
 
 
 def test_combine_pools_split_seeds_and_refuses_overlaps(tmp_path, capsys):
-    tts = _bench()
+    tts = load_bench("time_to_success.py")
 
     def run(*argv):  # in this process: the bench's main as its command line calls it
         capsys.readouterr()
