@@ -33,10 +33,22 @@ runs) does not exist in one process; the bench says so instead of inventing it. 
 unless ``MANISKILL_DUALHER_LEAN_STEP=0`` (compare the two for the env's share before/after).
 
     python bench/step_budget.py [--tasks ReachTarget-v1,...] [--members 2] [--steps 3000]
-                                [--learning-starts N] [--out FILE.json]
+                                [--learning-starts N] [--set KEY=VALUE ...] [--warmup-steps W] [--out FILE.json]
 
 ``--learning-starts N`` (default: the preset's) sets both the random steps and the first update's env step
-(a short run that reaches its updates: tests/test_step_budget.py).
+(a short run that reaches its updates: tests/test_step_budget.py). ``--learning-starts 0`` is the steady state:
+no random-step phase, one update per env step from the first full batch.
+
+``--set KEY=VALUE`` (repeatable) changes the runs' settings as ``sweep --set`` does, e.g. ``--set sac.compile=true``
+(the opt-in ``torch.compile`` of the fused update; its bits differ from the default's, ``bench/golden.py``
+has its own cases). ``--warmup-steps W`` counts nothing before every member has made W env steps: wall time,
+CPU time, parts, calls and updates are measured from there (a compiled update's compilation, ~3 s warm and
+~60 s cold, happens at the first update and is not a training step's cost; the report states W).
+
+A compiled update's products are timed where inductor's generated code calls them (``extern_kernels.mm``, ``addmm``,
+``bmm``, ``baddbmm``: looked up at every call, so a timer set there sees each one); inductor writes the critics'
+matrix-vector products as its own loops, which count as overhead (the floor is understated, so the ratio to it
+is overstated, not flattered).
 
 ``--regime paper`` measures a run as the ``paper_regime`` experiment's ``episode`` arm adapts (issue 41): the
 ``reference`` preset with that arm's adaptation settings read from the registry (Table 3: replay 10^7, HER
@@ -70,6 +82,7 @@ PARTS = ("physics", "env python", "env reset", "acting", "episodes+store", "samp
          "setup", "driver loop")
 FLOOR = ("physics", "eval physics", "update products")
 PRODUCTS = ("mm", "bmm", "addmm", "baddbmm", "mv")
+COMPILED_PRODUCTS = ("mm", "bmm", "addmm", "baddbmm")  # inductor's extern kernels (mv: its own loops)
 
 
 class Clock:
@@ -83,7 +96,21 @@ class Clock:
         self.intervals = {p: 0 for p in PARTS}  # timer intervals charged to each part (each holds ~one event's cost)
         self.stack = ["driver loop"]
         self.events = 0
+        self.runs = []  # the trainers, as they start (the warm-up's mark reads their counters)
+        self.marked = None  # (wall, process CPU, updates) at the warm-up's end; None: not yet
         self.reset()
+
+    def mark(self) -> None:
+        """The warm-up ends here: what was charged so far is dropped, the counts start again."""
+        self._charge()
+        for d in (self.wall, self.cpu):
+            for p in d:
+                d[p] = 0.0
+        for d in (self.calls, self.intervals):
+            for p in d:
+                d[p] = 0
+        self.events = 0
+        self.marked = (time.perf_counter(), time.process_time(), sum(r.count.updates for r in self.runs))
 
     def reset(self) -> None:
         self.last, self.last_cpu = time.perf_counter(), time.thread_time()
@@ -144,7 +171,7 @@ class _Px:
             CLOCK.leave()
 
 
-def instrument() -> None:
+def instrument(warmup_steps: int = 0, compiled: bool = False) -> None:
     import maniskill_dualher.sac_fused as sf
     import maniskill_dualher.tasks  # noqa: F401  (registers the tasks)
     from maniskill_dualher import envs, pack, sac, train
@@ -155,7 +182,12 @@ def instrument() -> None:
     train.freeze_imports()
     T = train.Trainer
     T.__init__ = timed(T.__init__, "setup")
-    T.start = timed(T.start, "setup")
+    start = timed(T.start, "setup")
+
+    def start_and_register(self, *a, **kw):
+        CLOCK.runs.append(self)
+        return start(self, *a, **kw)
+    T.start = start_and_register
     T.close = timed(T.close, "setup")
     T.step = timed(T.step, "episodes+store")
     T._explore = timed(T._explore, "acting")
@@ -164,7 +196,14 @@ def instrument() -> None:
     T.sample = timed(T.sample, "sampling")
     T.learn = timed(T.learn, "update logging")
     T.between_episodes = timed(T.between_episodes, "logging+ckpt")
-    T.after_step = timed(T.after_step, "logging+ckpt")
+    after_step = timed(T.after_step, "logging+ckpt")
+
+    def after_step_and_mark(self, *a, **kw):
+        out = after_step(self, *a, **kw)
+        if CLOCK.marked is None and warmup_steps and all(r.count.env_steps >= warmup_steps for r in CLOCK.runs):
+            CLOCK.mark()
+        return out
+    T.after_step = after_step_and_mark
     T.evaluate = timed(T.evaluate, "eval python")
     train.evaluate_runs = timed(train.evaluate_runs, "eval python")  # runs due together: side by side
     T.finish = timed(T.finish, "logging+ckpt")
@@ -188,12 +227,18 @@ def instrument() -> None:
     F = sf.FusedUpdate
     F.__call__ = timed(F.__call__, "update overhead")
     F.step_pack = timed(F.step_pack, "update overhead")
-    # the fused update's products: sac_fused looks them up on its module-level ``torch``
+    # the fused update's products: sac_fused looks them up on its module-level ``torch`` (not for a compiled
+    # update: dynamo would trace into the timers and break its graph at every product)
     import torch
+    if compiled:
+        from torch._inductor.select_algorithm import extern_kernels
+        for name in COMPILED_PRODUCTS:  # where inductor's generated code calls its products
+            setattr(extern_kernels, name, timed(getattr(extern_kernels, name), "update products"))
     proxy = types.SimpleNamespace(**{k: getattr(torch, k) for k in dir(torch) if not k.startswith("__")})
     for name in PRODUCTS:
         setattr(proxy, name, timed(getattr(torch, name), "update products"))
-    sf.torch = proxy
+    if not compiled:
+        sf.torch = proxy
     # priority updates: every method's go through BufferMethod.update_priorities (replay/method.py)
     rm.BufferMethod.update_priorities = timed(rm.BufferMethod.update_priorities, "priorities")
 
@@ -239,8 +284,9 @@ def regime_config(regime: str, method: str, seed: int, task: str):
 
 
 def run(task: str, members: int, steps: int, method: str, learning_starts: Optional[int] = None,
-        regime: str = "quick") -> dict:
+        regime: str = "quick", sets: tuple = (), warmup_steps: int = 0) -> dict:
     global CLOCK
+    from maniskill_dualher.experiment import overrides
     from maniskill_dualher.train import Job, train_runs
 
     jobs = []
@@ -250,6 +296,7 @@ def run(task: str, members: int, steps: int, method: str, learning_starts: Optio
         cfg.total_steps = steps
         if learning_starts is not None:
             cfg.sac.random_steps = cfg.sac.learning_starts = learning_starts
+        cfg = overrides.apply(cfg, sets)
         cfg.validate()
         jobs.append(Job(cfg, os.path.join(tmp, f"s{seed}")))
     try:
@@ -260,16 +307,23 @@ def run(task: str, members: int, steps: int, method: str, learning_starts: Optio
         CLOCK._charge()
         wall = time.perf_counter() - wall0
         cpu = time.process_time() - cpu0
+        updates0 = 0
+        if warmup_steps:
+            if CLOCK.marked is None:
+                raise SystemExit(f"--warmup-steps={warmup_steps}: the runs never got there (--steps={steps})")
+            wall = time.perf_counter() - CLOCK.marked[0]
+            cpu = time.process_time() - CLOCK.marked[1]
+            updates0 = CLOCK.marked[2]
     finally:
         shutil.rmtree(tmp, ignore_errors=True)  # the runs' folders (checkpoints, replay) are not the result
     errors = [r["error"] for r in rows if "error" in r]
     if errors:
         raise SystemExit(f"a run failed: {errors[0]!r}")
-    env_steps = steps * members
+    env_steps = (steps - warmup_steps) * members
     return {"task": task, "members": members, "steps_per_member": steps, "method": method, "regime": regime,
-            "wall_s": wall,
+            "warmup_steps_per_member": warmup_steps, "sets": [o.text() for o in sets], "wall_s": wall,
             "cpu_s": cpu, "training_env_steps": env_steps, "timer_events": CLOCK.events,
-            "updates": sum(int(r["row"]["updates"]) for r in rows),
+            "updates": sum(int(r["row"]["updates"]) for r in rows) - updates0,
             "parts_wall_s": dict(CLOCK.wall), "parts_cpu_s": dict(CLOCK.cpu), "calls": dict(CLOCK.calls),
             "intervals": dict(CLOCK.intervals), "cfg": jobs[0].cfg.to_dict()}
 
@@ -286,7 +340,11 @@ def report(res: dict, per_event: dict) -> str:
     lines = [f"{res['task']}: {res['members']} members x {res['steps_per_member']} env steps ({res['method']}, "
              f"{'quick preset' if regime == 'quick' else 'paper_regime:episode adaptation settings'}, "
              f"update schedule {sched!r}, updates from env step {starts}: {res['updates']} in all, lean step "
-             f"{'on' if res['lean_step'] else 'off'}), wall {wall:.1f} s, process CPU "
+             f"{'on' if res['lean_step'] else 'off'}"
+             + (f", settings {' '.join(res['sets'])}" if res.get("sets") else "")
+             + (f"; measured after a warm-up of {res['warmup_steps_per_member']} env steps per member"
+                if res.get("warmup_steps_per_member") else "")
+             + f"), wall {wall:.1f} s, process CPU "
              f"{cpu:.1f} s ({100 * cpu / wall:.0f}% of wall: the rest waited for a core)",
              f"per training env step, timer cost removed ({res['timer_events']} events x "
              f"{1e6 * per_event['wall']:.2f} us wall / {1e6 * per_event['cpu']:.2f} us CPU = {100 * timer_w / wall:.1f}% "
@@ -322,6 +380,10 @@ def main(argv=None) -> None:
     p.add_argument("--method", default="dual_buffer")
     p.add_argument("--learning-starts", type=int, default=None,
                    help="random steps and first update's env step (default: the quick preset's)")
+    p.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
+                   help="a setting of every run, as `sweep --set` (e.g. sac.compile=true); repeatable")
+    p.add_argument("--warmup-steps", type=int, default=0,
+                   help="env steps per member run before anything is counted (a compiled update compiles there)")
     p.add_argument("--out", help="JSON file for the raw numbers (atomic write)")
     p.add_argument("--load", default="", help="a note on the machine's load while this ran, kept in the output")
     args = p.parse_args(argv)
@@ -346,15 +408,31 @@ def main(argv=None) -> None:
     if args.learning_starts is not None and args.learning_starts < 0:
         print(f"--learning-starts={args.learning_starts} must be >= 0", file=sys.stderr)
         raise SystemExit(2)
+    if not 0 <= args.warmup_steps < args.steps:
+        print(f"--warmup-steps={args.warmup_steps} must be >= 0 and below --steps={args.steps}", file=sys.stderr)
+        raise SystemExit(2)
+    from maniskill_dualher.config import ConfigError
+    from maniskill_dualher.experiment import overrides
+    try:
+        sets = overrides.parse_all(args.sets)
+        compiled = set()
+        for task in tasks:  # every run's config is checked before anything runs
+            cfg = overrides.apply(regime_config(args.regime, args.method, 0, task), sets)
+            cfg.validate()
+            compiled.add(cfg.sac.compile)
+    except ConfigError as e:
+        print(f"--set {' '.join(args.sets)!r}: {e}", file=sys.stderr)
+        raise SystemExit(2)
     import torch
     torch.set_num_threads(1)
     from maniskill_dualher import envs
-    instrument()
+    instrument(args.warmup_steps, compiled == {True})
     per_event = calibrate()
     lean = envs.lean_step_wanted()
     results = []
     for task in tasks:
-        res = run(task, args.members, args.steps, args.method, args.learning_starts, args.regime)
+        res = run(task, args.members, args.steps, args.method, args.learning_starts, args.regime, sets,
+                  args.warmup_steps)
         res["lean_step"] = lean
         res["timer_event_s"] = per_event
         results.append(res)

@@ -1,6 +1,8 @@
 """bench/step_budget.py: bad input is one line and exit code 2; a short run attributes its wall time."""
 import json
+import shutil
 
+import pytest
 from bench_cli import run_bench
 
 
@@ -11,7 +13,8 @@ def _run(*args):
 def test_bad_input_is_one_line_exit_2(tmp_path):
     out = tmp_path / "x.json"
     for args in (["--tasks", "Nope-v1"], ["--members", "0"], ["--steps", "-3"], ["--method", "nope"],
-                 ["--learning-starts", "-1"]):
+                 ["--learning-starts", "-1"], ["--set", "sac.nope=1"], ["--set", "sac.compile=maybe"],
+                 ["--warmup-steps", "3000"], ["--warmup-steps", "-1"]):
         r = _run(*args, "--out", str(out))
         assert r.returncode == 2, r.stderr
         assert len(r.stderr.strip().splitlines()) == 1 and args[1] in r.stderr
@@ -55,3 +58,38 @@ def test_paper_regime_runs_the_registry_arm_at_algorithm_1s_schedule(tmp_path):
     assert cfg["sac"]["random_steps"] == cfg["sac"]["learning_starts"] == 50
     # one update per finished episode after learning starts: at most (400 - 50) / 1 episodes, far fewer than steps
     assert 0 < res["updates"] < 400 - 50 and res["calls"]["sampling"] == res["updates"]
+
+
+def test_warmup_steps_are_not_counted(tmp_path):
+    """--warmup-steps W: wall time, parts and counts start once every member has made W env steps, so the
+    measured env steps, acting calls and updates are the run's less its first W steps'; --set reaches the runs."""
+    out = tmp_path / "budget.json"
+    members, steps, warm = 2, 200, 120
+    r = _run("--tasks", "ReachTarget-v1", "--members", str(members), "--steps", str(steps), "--learning-starts", "50",
+             "--warmup-steps", str(warm), "--set", "sac.log_every=7", "--out", str(out))
+    assert r.returncode == 0, r.stderr[-2000:]
+    doc = json.loads(out.read_text())
+    res = doc["results"][0]
+    n = members * (steps - warm)
+    assert res["training_env_steps"] == n and res["calls"]["env python"] == n and res["calls"]["acting"] == n
+    # updates after the mark: one per env step from 50 on, all of them past 120 (less the batch's first wait)
+    assert 0 < res["updates"] <= n and res["calls"]["sampling"] == res["updates"]
+    assert abs(sum(res["parts_wall_s"].values()) - res["wall_s"]) < 0.02 * res["wall_s"]
+    assert res["cfg"]["sac"]["log_every"] == 7 and res["sets"] == ["sac.log_every=7"]
+    assert f"warm-up of {warm} env steps" in doc["report"][0]
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(shutil.which("c++") is None and shutil.which("g++") is None, reason="no C++ compiler")
+def test_a_compiled_update_has_its_products_timed(tmp_path):
+    """--set sac.compile=true: the products inside inductor's code are timed (extern kernels), not zero, and the
+    compiled graph is not broken by the eager product timers (its overhead is below its products')."""
+    out = tmp_path / "budget.json"
+    r = _run("--tasks", "ReachTarget-v1", "--members", "1", "--steps", "900", "--learning-starts", "0",
+             "--warmup-steps", "300", "--set", "sac.compile=true", "--out", str(out))
+    assert r.returncode == 0, r.stderr[-2000:]
+    res = json.loads(out.read_text())["results"][0]
+    parts = res["parts_wall_s"]
+    assert res["cfg"]["sac"]["compile"] is True and res["updates"] > 0
+    assert res["calls"]["update products"] >= 20 * res["updates"]  # 22 extern products per update at 64x64
+    assert 0 < parts["update overhead"] < parts["update products"]
