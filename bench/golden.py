@@ -7,7 +7,8 @@
 Each case runs in a fresh process (PhysX CPU contacts are not reproducible across resets within one process,
 so a fresh process is compared with a fresh process). A case is the smoke preset's single-task settings at
 300 env steps (100 random, then 200 with updates): every method alone on every task, the three methods as one
-pack on every task, the modern SAC variant alone and packed, the autograd update alone, and a two-stage chain
+pack on every task, the modern SAC variant alone and packed, the autograd update alone, the compiled update (``sac.compile``,
+opt-in: bits of its own, held to themselves) alone, and a two-stage chain
 (ReachTarget -> CloseMicrowave, replay carried) per transfer method plus the shared-prior chain. A digest holds
 metrics.csv without its wall-clock column, the final agent state (networks, optimizers, alpha) as a sha256,
 policy.pt's actor as a sha256, and the run folder's name relative to the case (chains: the config hashes).
@@ -46,6 +47,10 @@ def cases() -> dict:
                                                         for m in METHODS]
                                                + [{"method": "dual_buffer", "task": "CloseBox-v1",
                                                    "set": modern + ["seed=1"]}]})
+    # the opt-in compiled update (its bits are its own, not the eager update's): held to itself across changes
+    out["alone-compiled-modern-dual_buffer-ReachTarget-v1"] = ("alone", {"method": "dual_buffer",
+                                                                       "task": "ReachTarget-v1",
+                                                                       "set": modern + ["sac.compile=true"]})
     out["alone-autograd-sac_her_per-ReachTarget-v1"] = ("alone", {"method": "sac_her_per", "task": "ReachTarget-v1",
                                                                   "set": ["sac.update_impl=autograd"]})
     for m in ("sac_her_per", "dual_buffer"):

@@ -129,9 +129,12 @@ class Layers:
         return h, inputs
 
     def backward(self, inputs, g: torch.Tensor, grads: Optional[List[torch.Tensor]] = None,
-                 input_cols: Optional[slice] = None) -> Optional[torch.Tensor]:
+                 input_cols: Optional[slice] = None, grad_rows: Optional[slice] = None,
+                 input_rows: Optional[slice] = None) -> Optional[torch.Tensor]:
         """g = dL/d(output) (E, B, out). Appends the gradients of ``params`` (in that order) to ``grads`` if it
-        is given; returns dL/d(input)[..., input_cols] (E, B, len) if ``input_cols`` is given, else None."""
+        is given, from the batch rows ``grad_rows`` (None: all); returns dL/d(input)[:, input_rows, input_cols]
+        (E, rows, len) if ``input_cols`` is given, else None. Rows are independent until a weight gradient sums
+        them, so two losses' batches stacked as row blocks go back through one pass."""
         found: List[Tuple[torch.Tensor, torch.Tensor]] = []
         back = None
         for k in reversed(range(len(self.W))):
@@ -140,14 +143,15 @@ class Layers:
             if xb is not None:  # bf16 layer: both products take bf16 inputs
                 gb, wb = g.to(torch.bfloat16), w.to(torch.bfloat16)
                 if grads is not None:
-                    found.append(self._grads(xb, gb, g))
+                    found.append(self._grads(_rows(xb, grad_rows), _rows(gb, grad_rows), _rows(g, grad_rows)))
                 g = _mm(gb, wb.transpose(1, 2)).float()
             else:
                 if grads is not None:
-                    found.append(self._grads(x, g, g))
+                    gr = _rows(g, grad_rows)
+                    found.append(self._grads(_rows(x, grad_rows), gr, gr))
                 if k == 0:
                     if input_cols is not None:
-                        back = torch.bmm(g, w[:, input_cols, :].transpose(1, 2))
+                        back = torch.bmm(_rows(g, input_rows), w[:, input_cols, :].transpose(1, 2))
                     break
                 if w.shape[-1] == 1:
                     g = g * self.wt[k]
@@ -177,6 +181,11 @@ class Layers:
             gw = torch.bmm(x.transpose(1, 2), gx)
             gbias = g.sum(1, keepdim=True)
         return (gw if gw.dtype == torch.float32 else gw.float()), gbias
+
+
+def _rows(t: torch.Tensor, rows: Optional[slice]) -> torch.Tensor:
+    """The batch rows ``rows`` of an (E, B, ...) tensor (a view); None: all of it."""
+    return t if rows is None else t[:, rows]
 
 
 def _mm(x: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
@@ -292,34 +301,49 @@ class FusedUpdate:
         separate_actor_batch = pi_obs is not None  # the actor trains on its own batch
         pi_obs = obs if pi_obs is None else pi_obs
 
-        # --- policy at s, and the critics there (their weights are constants in the actor loss)
+        # --- the policy at s (actor loss) and, for the modern variant, at s' (critic target) in one pass: the
+        # batches as row blocks, each row's numbers what its own pass gives (row-independent products and
+        # elementwise ops; bench/golden.py holds the bits)
         n_pi = pi_obs.shape[1]
-        a_pi, logp_pi, saved_pi = self.policy(pi_obs, keep=True, eps=next(draws))
-        q_pi_all, q_pi_inputs = self.q.forward(torch.cat([pi_obs, a_pi], -1))
-        q_pi, q_pi_arg = self._min_critic(q_pi_all)
+        if sac.paper:
+            a_pi, logp_pi, saved_pi = self.policy(pi_obs, keep=True, eps=next(draws))
+        else:
+            eps_pi = next(draws)
+            a_all, logp_all, saved_all = self.policy(torch.cat([pi_obs, next_obs], 1), keep=True,
+                                                     eps=torch.cat([eps_pi, next(draws)], 1))
+            a_pi, logp_pi, a_next, logp_next = (a_all[:, :n_pi], logp_all[:, :n_pi], a_all[:, n_pi:],
+                                                logp_all[:, n_pi:])
+            inputs, raw_log_std, _, std, a = saved_all
+            saved_pi = ([(x[:, :n_pi], None if xb is None else xb[:, :n_pi]) for x, xb in inputs],
+                        raw_log_std[:, :n_pi], eps_pi, std[:, :n_pi], a_pi)
         actor_w = w if (w is not None and not separate_actor_batch and not cfg.is_weights_critic_only) else None
 
         # --- critic targets
         if sac.paper:
             next_v = self.v_target.forward(next_obs)[0].squeeze(-1)
         else:
-            a_next, logp_next, _ = self.policy(next_obs, keep=False, eps=next(draws))
             q_next = self._min_critic(self.q_target.forward(torch.cat([next_obs, a_next], -1))[0]).values
             next_v = q_next - alpha * logp_next
         y = rew + cfg.gamma * (1.0 - done) * next_v
 
-        q_sa, q_sa_inputs = self.q.forward(torch.cat([obs, act], -1))
-        td = q_sa.view(-1, self.q.per_agent, n_critic) - y.unsqueeze(1)  # (S, 2, B)
+        # --- the critics at (s, a_pi) (actor loss; their weights constants there) and at (s, a) (critic loss)
+        # in one pass, as row blocks [pi rows; critic rows]
+        q_all, q_inputs = self.q.forward(torch.cat([torch.cat([pi_obs, a_pi], -1), torch.cat([obs, act], -1)], 1))
+        q_all = q_all.view(-1, self.q.per_agent, n_pi + n_critic)  # (S, 2, rows)
+        q_pi, q_pi_arg = q_all[:, :, :n_pi].min(1)
+        q_sa = q_all[:, :, n_pi:]
+        td = q_sa - y.unsqueeze(1)  # (S, 2, B)
 
-        # --- critic loss mean_b w_b 0.5 sum_e td^2: dL/dQ_e(s, a) = w td / B
+        # --- critic loss mean_b w_b 0.5 sum_e td^2: dL/dQ_e(s, a) = w td / B; actor loss mean_b w_b (alpha log pi
+        # - min_e Q_e(s, a_pi)): through the argmin member into a_pi. One backward: the critic rows' weight
+        # gradients, the pi rows' input gradient
         g_q = td * (w / n_critic).unsqueeze(1) if w is not None else td / n_critic
-        self.q.backward(q_sa_inputs, g_q.view(-1, n_critic, 1), grads)
-
-        # --- actor loss mean_b w_b (alpha log pi - min_e Q_e(s, a_pi)): through the argmin member into a_pi
         coef = actor_w / n_pi if actor_w is not None else torch.full_like(logp_pi, 1.0 / n_pi)
         g_q_pi = torch.zeros(q_pi_arg.shape[0], self.q.per_agent, n_pi).scatter_(
             1, q_pi_arg.unsqueeze(1), -coef.unsqueeze(1))
-        g_a = self.q.backward(q_pi_inputs, g_q_pi.view(-1, n_pi, 1), input_cols=slice(d_obs, None))
+        g_a = self.q.backward(q_inputs, torch.cat([g_q_pi, g_q], 2).view(-1, n_pi + n_critic, 1), grads,
+                              input_cols=slice(d_obs, None), grad_rows=slice(n_pi, None),
+                              input_rows=slice(0, n_pi))
         g_a = g_a.view(-1, self.q.per_agent, n_pi, g_a.shape[-1]).sum(1)
         self.policy_backward(saved_pi, g_a, alpha * coef, grads)
 
@@ -333,7 +357,7 @@ class FusedUpdate:
                 else actor_terms.mean(-1),
                 "losses/alpha": alpha[:, 0],
                 "losses/entropy": -logp_pi.mean(-1),
-                "losses/qf_values": q_sa.view(len(sq), -1).mean(-1),
+                "losses/qf_values": q_sa.reshape(len(sq), -1).mean(-1),
             }
         if sac.paper:  # V(s) <- min_e Q_e(s, a~pi) - alpha log pi (Eq. 4)
             v_target = q_pi - alpha * logp_pi
