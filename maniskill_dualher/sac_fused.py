@@ -245,6 +245,7 @@ class FusedUpdate:
         self._moves = [{False: [True] * len(ps), True: [id(p) not in pol for p in ps]}
                        for ps, pol in zip(self.params_of, self.policy_ids)]
         self._lists: Dict[tuple, tuple] = {}
+        self.row_blocks = len(self.sacs) == 1  # _compute: one agent's passes share their layers (row blocks)
         self.compute = self._compute
         if sac.cfg.compile:  # compute draws nothing (``draws`` are made outside it): nothing random to compile
             self.compute = torch.compile(self._compute, dynamic=False)
@@ -301,12 +302,16 @@ class FusedUpdate:
         separate_actor_batch = pi_obs is not None  # the actor trains on its own batch
         pi_obs = obs if pi_obs is None else pi_obs
 
-        # --- the policy at s (actor loss) and, for the modern variant, at s' (critic target) in one pass: the
-        # batches as row blocks, each row's numbers what its own pass gives (row-independent products and
-        # elementwise ops; bench/golden.py holds the bits)
+        # --- the policy at s (actor loss) and, for the modern variant, at s' (critic target). One agent: in one
+        # pass, the batches as row blocks, each row's numbers what its own pass gives (row-independent products
+        # and elementwise ops; bench/golden.py holds the bits). A pack keeps the passes apart: its joined
+        # tensors are S times larger and leave the cache (bench/update_overhead.py: slower at S = 8)
         n_pi = pi_obs.shape[1]
-        if sac.paper:
+        rows = self.row_blocks
+        if sac.paper or not rows:
             a_pi, logp_pi, saved_pi = self.policy(pi_obs, keep=True, eps=next(draws))
+            if not sac.paper:
+                a_next, logp_next, _ = self.policy(next_obs, keep=False, eps=next(draws))
         else:
             eps_pi = next(draws)
             a_all, logp_all, saved_all = self.policy(torch.cat([pi_obs, next_obs], 1), keep=True,
@@ -326,25 +331,36 @@ class FusedUpdate:
             next_v = q_next - alpha * logp_next
         y = rew + cfg.gamma * (1.0 - done) * next_v
 
-        # --- the critics at (s, a_pi) (actor loss; their weights constants there) and at (s, a) (critic loss)
-        # in one pass, as row blocks [pi rows; critic rows]
-        q_all, q_inputs = self.q.forward(torch.cat([torch.cat([pi_obs, a_pi], -1), torch.cat([obs, act], -1)], 1))
-        q_all = q_all.view(-1, self.q.per_agent, n_pi + n_critic)  # (S, 2, rows)
-        q_pi, q_pi_arg = q_all[:, :, :n_pi].min(1)
-        q_sa = q_all[:, :, n_pi:]
+        # --- the critics at (s, a_pi) (actor loss; their weights constants there) and at (s, a) (critic loss):
+        # one agent in one pass, row blocks [pi rows; critic rows]
+        per = self.q.per_agent
+        if rows:
+            q_all, q_inputs = self.q.forward(torch.cat([torch.cat([pi_obs, a_pi], -1), torch.cat([obs, act], -1)],
+                                                       1))
+            q_all = q_all.view(-1, per, n_pi + n_critic)  # (S, 2, rows)
+            q_pi, q_pi_arg = q_all[:, :, :n_pi].min(1)
+            q_sa = q_all[:, :, n_pi:]
+        else:
+            q_pi_all, q_pi_inputs = self.q.forward(torch.cat([pi_obs, a_pi], -1))
+            q_pi, q_pi_arg = self._min_critic(q_pi_all)
+            q_sa, q_sa_inputs = self.q.forward(torch.cat([obs, act], -1))
+            q_sa = q_sa.view(-1, per, n_critic)
         td = q_sa - y.unsqueeze(1)  # (S, 2, B)
 
         # --- critic loss mean_b w_b 0.5 sum_e td^2: dL/dQ_e(s, a) = w td / B; actor loss mean_b w_b (alpha log pi
-        # - min_e Q_e(s, a_pi)): through the argmin member into a_pi. One backward: the critic rows' weight
-        # gradients, the pi rows' input gradient
+        # - min_e Q_e(s, a_pi)): through the argmin member into a_pi (row blocks: one backward, the critic rows'
+        # weight gradients and the pi rows' input gradient)
         g_q = td * (w / n_critic).unsqueeze(1) if w is not None else td / n_critic
         coef = actor_w / n_pi if actor_w is not None else torch.full_like(logp_pi, 1.0 / n_pi)
-        g_q_pi = torch.zeros(q_pi_arg.shape[0], self.q.per_agent, n_pi).scatter_(
-            1, q_pi_arg.unsqueeze(1), -coef.unsqueeze(1))
-        g_a = self.q.backward(q_inputs, torch.cat([g_q_pi, g_q], 2).view(-1, n_pi + n_critic, 1), grads,
-                              input_cols=slice(d_obs, None), grad_rows=slice(n_pi, None),
-                              input_rows=slice(0, n_pi))
-        g_a = g_a.view(-1, self.q.per_agent, n_pi, g_a.shape[-1]).sum(1)
+        g_q_pi = torch.zeros(q_pi_arg.shape[0], per, n_pi).scatter_(1, q_pi_arg.unsqueeze(1), -coef.unsqueeze(1))
+        if rows:
+            g_a = self.q.backward(q_inputs, torch.cat([g_q_pi, g_q], 2).view(-1, n_pi + n_critic, 1), grads,
+                                  input_cols=slice(d_obs, None), grad_rows=slice(n_pi, None),
+                                  input_rows=slice(0, n_pi))
+        else:
+            self.q.backward(q_sa_inputs, g_q.view(-1, n_critic, 1), grads)
+            g_a = self.q.backward(q_pi_inputs, g_q_pi.view(-1, n_pi, 1), input_cols=slice(d_obs, None))
+        g_a = g_a.view(-1, per, n_pi, g_a.shape[-1]).sum(1)
         self.policy_backward(saved_pi, g_a, alpha * coef, grads)
 
         terms: Dict[str, torch.Tensor] = {}
