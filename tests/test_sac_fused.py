@@ -123,6 +123,34 @@ def test_bf16_hidden_products_stay_close_to_fp32():
         assert err < 0.1, f"{n}: relative gradient error {err:.3f}"
 
 
+@pytest.mark.parametrize("variant,is_weights,actor_batch,precision",
+                         [(v, w, a, pr) for v, w, a in itertools.product(["modern", "paper"], [False, True],
+                                                                         [False, True])
+                          for pr in ("highest", "bf16")])
+def test_row_blocks_give_the_separate_passes_bits(variant, is_weights, actor_batch, precision):
+    """One agent's update joins its passes as row blocks (the policy at s and s', the critics at (s, a_pi) and
+    (s, a)); on this machine that gives bit for bit what separate passes give, the claim behind "bits unchanged"
+    (bench/golden.py). It would fail on a BLAS whose per-row results depend on the number of rows."""
+    torch.manual_seed(0)
+    cfg = SACConfig(variant=variant, batch_size=B, hidden=(64, 64), lr=1e-3, matmul_precision=precision)
+    joined = SAC(D, A, cfg, generator=torch.Generator().manual_seed(3))
+    apart = SAC(D, A, cfg, generator=torch.Generator().manual_seed(3))
+    apart.load_state_dict(joined.state_dict())
+    for agent, rows in ((joined, True), (apart, False)):
+        agent.update(make_batch(0, is_weights))  # the first step (optimizer.step(): Adam's state made)
+        assert agent._fused.row_blocks  # one agent: rows joined unless told otherwise
+        agent._fused.row_blocks = rows
+    for step in range(1, 4):
+        actor_batch_ = make_batch(100 + step, n=48) if actor_batch else None
+        td_j, logs_j = joined.update(make_batch(step, is_weights), actor_batch_, want_logs=True)
+        td_a, logs_a = apart.update(make_batch(step, is_weights), actor_batch_, want_logs=True)
+        assert np.array_equal(td_j, td_a) and logs_j == logs_a
+    for (n, p), q in zip(joined.state_dict().items(), apart.state_dict().values()):
+        assert torch.equal(p, q), n
+    for p, q in zip(_opt_state(joined), _opt_state(apart)):
+        assert torch.equal(p, q)
+
+
 def test_fused_update_resumes_from_a_checkpoint_like_autograd():
     """Checkpoints are the same state_dicts: an autograd agent's full state drives a fused agent on."""
     ref, _ = twins(variant="modern")
