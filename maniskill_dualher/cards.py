@@ -11,10 +11,19 @@ action size, controller, episode rules) and the run's training settings (the ``R
 
     python -m maniskill_dualher.cards [results/policies]            # write policy.json's two entries and the cards
     python -m maniskill_dualher.cards [results/policies] --check    # exit 1 if a card or entry is not up to date
+    python -m maniskill_dualher.cards export RUN [--policy best|final] [--root results/policies] [--episodes 100]
+
+``export`` makes such a folder from a finished run folder (``export_run``): its ``policy_best.pt`` (a single-task
+run's default) or ``policy.pt`` (a transfer chain's adaptation stage's default: its final state, the rule the
+shipped chain policies follow), a ``policy.json`` read from the run's own files (``config.json``,
+``provenance.json``, ``metrics.csv``, ``stage.json``, ``cell.json``, the sweep's ``sweep.json``), the held-out
+evaluation run there, and the card. It refuses to replace a folder that exists, and writes the new one staged and
+renamed, so a kill leaves no half folder.
 """
 from __future__ import annotations
 
 import json
+import os
 import sys
 from pathlib import Path
 from typing import Dict, List, Optional, Sequence
@@ -148,6 +157,7 @@ def card_text(doc: dict) -> str:
     g = itf["goal_dim"]
     t = doc.get(TRANSFER)
     before = " -> ".join(t["chain"][:-1]) if t else ""
+    n_eval = cfg.get("eval_episodes", 10)
     lines = [
         f"# Model card: {_method_display(method)} on {task}" + (f", adapted after {before}" if t else ""),
         "",
@@ -173,11 +183,11 @@ def card_text(doc: dict) -> str:
         f"Held out: {score_line(doc)} (seeds no training evaluation used), mean episode length "
         f"{h['mean_episode_length']} steps; `{h['command']}` reproduces it. "
         + (f"Its last training evaluation, at env step {doc['policy_env_steps']}: {doc['policy_train_eval_success']} "
-           "success on 10 episodes (no evaluation chose this policy)." if t else
+           f"success on {n_eval} episodes (no evaluation chose this policy)." if t else
            f"Its training evaluation at env step {doc['policy_env_steps']}: {doc['policy_train_eval_success']} "
-           "success on 10 episodes (the ones that chose it, so optimistic)."),
+           f"success on {n_eval} episodes (the ones that chose it, so optimistic)."),
         "",
-        *(_transfer_seeds(t, cfg) if t else [
+        *([doc["seed_note"]] if doc.get("seed_note") else _transfer_seeds(t, cfg) if t else [
             f"**Seeds: this folder is one training run (seed {cfg.get('seed')}).** It shows what one run reached, "
             "not the spread over seeds; the single-task results over many seeds are in "
             "`results/reference/single_task.csv` (reference preset)."]),
@@ -214,10 +224,12 @@ def card_text(doc: dict) -> str:
            "included, not what the method does on average.",
            "* The final policy, chosen by no evaluation, so its training evaluations do not bias the held-out "
            "score; a better policy may have existed earlier in the stage (`policy_best.pt`, not shipped)."] if t else [
-            f"* Trained on `{task}` alone, at one budget and one seed; zero-shot on the other tasks, earlier runs "
-            "of the same settings and seed: `results/movies/zero_shot.csv` (a reaching policy closes the box, most "
-            "other pairs fail).",
-            "* Chosen by its own training evaluations (10 episodes), so only the held-out score above is unbiased."]),
+            f"* Trained on `{task}` alone, at one budget and one seed"
+            + ("." if doc.get("exported_from") else
+               "; zero-shot on the other tasks, earlier runs of the same settings and seed: "
+               "`results/movies/zero_shot.csv` (a reaching policy closes the box, most other pairs fail)."),
+            f"* Chosen by its own training evaluations ({n_eval} episodes), so only the held-out score above is "
+            "unbiased."]),
         "",
         "## Licence and citation",
         "",
@@ -232,12 +244,178 @@ def card_text(doc: dict) -> str:
     return "\n".join(lines)
 
 
+def _metrics_rows(run: Path) -> List[dict]:
+    import csv
+    with open(run / "metrics.csv", newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def _sweep_root(run: Path) -> Optional[Path]:
+    """The sweep folder a run folder belongs to (the nearest parent with ``sweep.json``), if any."""
+    for parent in run.resolve().parents:
+        if (parent / "sweep.json").is_file():
+            return parent
+    return None
+
+
+def _shown(path: Path) -> str:
+    """A path as a command line shows it: repository-relative inside this repository."""
+    try:
+        return path.resolve().relative_to(POLICIES.parents[1]).as_posix()
+    except ValueError:
+        return path.as_posix()
+
+
+def _utc(t: float) -> str:
+    import datetime as dt
+    return dt.datetime.fromtimestamp(t, dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
+
+
+def _command_of(start: dict) -> str:
+    """A process start's command line as typed (``python -m maniskill_dualher.<module> ...``)."""
+    argv = list(start.get("argv") or [])
+    if not argv:
+        return "(not recorded)"
+    head = Path(argv[0])
+    module = f"-m maniskill_dualher.{head.stem}" if head.parent.name == "maniskill_dualher" else str(argv[0])
+    return " ".join(["python", module] + [str(a) for a in argv[1:]])
+
+
+def export_doc(run: Path, which: Optional[str] = None) -> dict:
+    """policy.json's entries for the policy of finished run folder ``run`` (``which``: "best" or "final"; None:
+    best for a single-task run, final for a transfer stage), all read from the run's own files. Raises
+    ValueError (one line naming what is missing) if the run cannot be exported."""
+    from . import provenance as prov_mod
+    from .rundir import CONFIG, DONE, POLICY, POLICY_BEST, PROVENANCE, STAGE
+    run = Path(run)
+    for name in (CONFIG, DONE, PROVENANCE, "metrics.csv"):
+        if not (run / name).is_file():
+            raise ValueError(f"{run}: no {name} (an export needs a finished run folder)")
+    cfg = json.loads((run / CONFIG).read_text())
+    stage = json.loads((run / STAGE).read_text()) if (run / STAGE).is_file() else None
+    transfer = bool(stage and stage.get("adaptation"))
+    which = which or ("final" if transfer else "best")
+    if which not in ("best", "final"):
+        raise ValueError(f"--policy {which!r}: choose best or final")
+    src = run / (POLICY_BEST if which == "best" else POLICY)
+    if not src.is_file():
+        raise ValueError(f"{run}: no {src.name}")
+    rows = [r for r in _metrics_rows(run) if r.get("eval_success_rate") not in (None, "")]
+    if not rows:
+        raise ValueError(f"{run}: metrics.csv has no evaluation row")
+    best = max(rows, key=lambda r: float(r["eval_success_rate"]))  # max keeps the earliest of a tie, as policy_best
+    chosen = best if which == "best" else rows[-1]
+    starts = json.loads((run / PROVENANCE).read_text())["starts"]
+    first, last = starts[0], starts[-1]
+    cpu = last.get("cpu") or {}
+    machine = (f"{prov_mod.machine_name(cpu) or 'an unnamed CPU'} ({cpu.get('cores', '?')}-core {cpu.get('model', '?')}"
+               f"{' with AVX512-BF16' if cpu.get('avx512_bf16') else ''}{' and AMX' if cpu.get('amx_bf16') else ''}),"
+               f" {last.get('torch_threads', '?')} torch thread(s), {cfg.get('sim_backend', 'CPU')} simulation")
+    ev = cfg.get("eval_episodes")
+    doc = {
+        "task": cfg["env_id"], "method": cfg["method"],
+        "file": f"policy.pt (the run's {src.name}: "
+                + ("its best training evaluation" if which == "best" else "its state at the end of the run")
+                + f", {ev} episodes an evaluation)",
+        "command": f"{_command_of(first)}; cp RUN/{src.name} policy.pt",
+        "commit": last.get("commit"), "dirty": bool(last.get("dirty")), "machine": machine,
+        "versions": dict(sorted((last.get("versions") or {}).items())),
+        "trained_utc": _utc((run / DONE).stat().st_mtime),  # done.json's write: the run's end
+        "policy_env_steps": int(float(chosen["env_steps"])),
+        "policy_train_eval_success": float(chosen["eval_success_rate"]),
+        "exported_from": {"run": run.name, "policy": which},
+        "seed_note": f"**Seeds: this folder is one run (seed {cfg.get('seed')}), exported with `cards export`.** "
+                     "It shows what one run reached, not the spread over seeds.",
+    }
+    if transfer:
+        root = _sweep_root(run)
+        sweep = json.loads((root / "sweep.json").read_text()) if root else {}
+        cell = json.loads((run / "cell.json").read_text())["cells"][0] if (run / "cell.json").is_file() else {}
+        steps, folder = [], run  # each stage's env steps, walking the parents back to the first stage
+        while folder is not None:
+            steps.insert(0, int(json.loads((folder / CONFIG).read_text())["total_steps"]))
+            st = json.loads((folder / STAGE).read_text()) if (folder / STAGE).is_file() else {}
+            folder = folder.parent / st["parent"] if st.get("parent") else None
+        doc["transfer"] = {
+            "chain": list(stage["chain"]), "stage_env_steps": steps, "carry_replay": bool(stage.get("carry_replay")),
+            "preset": sweep.get("preset", "(no sweep.json)"), "experiment": cell.get("experiment", stage.get("protocol")),
+            "arm": cell.get("arm"), "seed": cfg.get("seed"),
+            "run": str(run.resolve().relative_to(root)) if root else run.name,
+            "policy": which, "best_train_eval": {"env_steps": int(float(best["env_steps"])),
+                                                 "success": float(best["eval_success_rate"])}}
+    return doc
+
+
+def export_run(run: Path, root: Path = POLICIES, which: Optional[str] = None, episodes: int = 100) -> Path:
+    """``results/policies/<task>/<folder>/`` from finished run folder ``run``: policy.pt, policy.json (with the
+    held-out evaluation of ``episodes`` episodes made here) and the card. Staged beside the target and renamed
+    into place; an existing target is refused (ValueError)."""
+    import shutil
+    import tempfile
+    import time
+    from .evaluate import evaluate_policy, seed_set
+    doc = export_doc(run, which)
+    target = Path(root) / doc["task"] / folder_name(doc)
+    if target.exists():
+        raise ValueError(f"{target} exists: export refuses to replace a policy folder (remove it first)")
+    target.parent.mkdir(parents=True, exist_ok=True)
+    stage = Path(tempfile.mkdtemp(prefix=f".{target.name}.", dir=target.parent))
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(stage, 0o777 & ~umask)  # mkdtemp's 0700 is not a shared folder's mode
+    try:
+        src = Path(run) / ("policy_best.pt" if doc["exported_from"]["policy"] == "best" else "policy.pt")
+        shutil.copyfile(src, stage / "policy.pt")
+        t0 = time.perf_counter()
+        res = evaluate_policy(stage / "policy.pt", episodes=episodes)
+        doc["held_out_evaluation"] = {
+            "command": f"python -m maniskill_dualher.evaluate {_shown(target)}" + (
+                f" --episodes {episodes}" if episodes != 100 else ""),
+            "seeds": f"{res['seed_first']}..{res['seed_last']}", "episodes": res["episodes"], "successes": res["successes"],
+            "success_rate": res["success_rate"], "success_ci95_wilson": list(res["success_ci"]),
+            "mean_episode_length": res["mean_episode_length"], "wall_s": round(time.perf_counter() - t0, 1)}
+        atomic_write_text(stage / "policy.json", json.dumps(doc, indent=2) + "\n")
+        sync_policy_json(stage)
+        atomic_write_text(stage / "README.md", card_text(json.loads((stage / "policy.json").read_text())))
+        stage.rename(target)
+    except BaseException:
+        shutil.rmtree(stage, ignore_errors=True)
+        raise
+    return target
+
+
 def policy_folders(root: Path = POLICIES) -> List[Path]:
     return sorted(p.parent for p in Path(root).glob("*/*/policy.json"))
 
 
+def export_main(argv: Sequence[str]) -> int:
+    from .cmdline import OneLineParser
+    p = OneLineParser(prog="python -m maniskill_dualher.cards export",
+                                description="A finished run's policy as a results/policies folder with its card.")
+    p.add_argument("run", help="a finished run folder (config.json, done.json, metrics.csv, its policy file)")
+    p.add_argument("--policy", choices=("best", "final"), default=None,
+                   help="policy_best.pt or policy.pt (default: best for a single-task run, final for a transfer stage)")
+    p.add_argument("--root", default=str(POLICIES), help="where the folder goes (default results/policies)")
+    p.add_argument("--episodes", type=int, default=100, help="held-out evaluation episodes (default 100)")
+    a = p.parse_args(argv)
+    if a.episodes < 1:
+        print(f"--episodes={a.episodes} must be >= 1", file=sys.stderr)
+        return 2
+    try:
+        out = export_run(Path(a.run), Path(a.root), a.policy, a.episodes)
+    except ValueError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    doc = json.loads((out / "policy.json").read_text())
+    print(f"wrote {out}: {score_line(doc)}")
+    return 0
+
+
 def main(argv: Optional[Sequence[str]] = None) -> int:
     import argparse
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["export"]:
+        return export_main(argv[1:])
     p = argparse.ArgumentParser(prog="python -m maniskill_dualher.cards",
                                 description="Write each committed policy's model card (README.md) from its policy.json.")
     p.add_argument("root", nargs="?", default=str(POLICIES), help="results/policies (default)")

@@ -80,3 +80,85 @@ def test_the_card_follows_policy_json(tmp_path):
              success_ci95_wilson=list(wilson(3, 7)))
     card = cards.card_text(dict(doc, held_out_evaluation=h))
     assert SCORE.findall(card)[0][:3] == ("3", "7", "0.43")
+
+
+# --------------------------------------------------------------------------- cards export: a run's policy shared
+@pytest.fixture(scope="module")
+def chain_sweep(tmp_path_factory):
+    """A smoke transfer chain of the dual buffer (3 stages of 150 env steps): stage 0 is a single-task run,
+    stage 2 an adaptation stage."""
+    from maniskill_dualher import sweep
+    out = tmp_path_factory.mktemp("export") / "sw"
+    sweep.main(["--preset", "smoke", "--experiments", "transfer", "--methods", "dual_buffer", "--seeds", "1",
+                "--workers", "1", "--no-report", "--out", str(out)])
+    stages = sorted((out / "runs" / "chain").glob("dual_buffer-s0/stage*"))
+    assert [p.name[:6] for p in stages] == ["stage0", "stage1", "stage2"]
+    return stages
+
+
+def _export(*args):
+    try:
+        return cards.main(["export", *map(str, args)])
+    except SystemExit as e:  # the parser's own one-line errors
+        return e.code
+
+
+def test_export_makes_a_policy_folder_from_a_run(chain_sweep, tmp_path, capsys):
+    """A single-task run's policy_best.pt, its policy.json read from the run's files, a held-out evaluation and
+    the card: the folder passes `cards --check` and loads as a policy."""
+    import csv
+    from maniskill_dualher.policy import load_policy
+    run = chain_sweep[0]
+    assert _export(run, "--root", tmp_path, "--episodes", 3) == 0
+    folder = tmp_path / "ReachTarget-v1" / "dual_buffer"
+    assert sorted(p.name for p in folder.iterdir()) == ["README.md", "policy.json", "policy.pt"]
+    assert (folder / "policy.pt").read_bytes() == (run / "policy_best.pt").read_bytes()
+    doc = json.loads((folder / "policy.json").read_text())
+    assert "transfer" not in doc and doc["exported_from"] == {"run": run.name, "policy": "best"}
+    rows = list(csv.DictReader(open(run / "metrics.csv")))
+    best = max(rows, key=lambda r: float(r["eval_success_rate"]))
+    assert doc["policy_env_steps"] == int(float(best["env_steps"]))
+    h = doc["held_out_evaluation"]
+    assert h["episodes"] == 3 and h["seeds"] == "2000000000..2000000002" and "--episodes 3" in h["command"]
+    assert h["success_ci95_wilson"] == pytest.approx(list(wilson(h["successes"], 3)))
+    assert doc["training_settings"]["env_id"] == "ReachTarget-v1" and doc["commit"]
+    assert (folder / "README.md").read_text() == cards.card_text(doc)
+    assert cards.main([str(tmp_path), "--check"]) == 0
+    assert load_policy(folder).env_id == "ReachTarget-v1"
+    assert "wrote" in capsys.readouterr().out
+
+
+def test_export_of_an_adaptation_stage_takes_its_final_policy_and_chain(chain_sweep, tmp_path):
+    run = chain_sweep[2]
+    assert _export(run, "--root", tmp_path, "--episodes", 2) == 0
+    folder = tmp_path / "CloseMicrowave-v1" / "dual_buffer_after_transfer"
+    doc = json.loads((folder / "policy.json").read_text())
+    assert (folder / "policy.pt").read_bytes() == (run / "policy.pt").read_bytes()
+    t = doc["transfer"]
+    assert t["chain"] == ["ReachTarget-v1", "CloseBox-v1", "CloseMicrowave-v1"] and t["policy"] == "final"
+    assert t["stage_env_steps"] == [json.loads((p / "config.json").read_text())["total_steps"] for p in chain_sweep]
+    assert t["preset"] == "smoke" and t["experiment"] == "transfer" and t["run"].endswith(run.name)
+    assert (folder / "README.md").read_text() == cards.card_text(doc)
+
+
+def test_export_refuses_to_replace_a_folder_and_bad_input(chain_sweep, tmp_path, capsys):
+    """An existing folder is never replaced; a run folder that is not finished, or a bad value: one line, exit 2,
+    nothing written (and no staging folder left behind)."""
+    run = chain_sweep[0]
+    assert _export(run, "--root", tmp_path, "--episodes", 1) == 0
+    folder = tmp_path / "ReachTarget-v1" / "dual_buffer"
+    before = {p.name: p.read_bytes() for p in folder.iterdir()}
+    capsys.readouterr()
+    assert _export(run, "--root", tmp_path, "--episodes", 1) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "exists" in err[0]
+    assert {p.name: p.read_bytes() for p in folder.iterdir()} == before
+    unfinished = tmp_path / "unfinished"
+    unfinished.mkdir()
+    (unfinished / "config.json").write_text((run / "config.json").read_text())
+    for args in ([unfinished], [run, "--episodes", 0], [run, "--policy", "middle"]):
+        assert _export(*args, "--root", tmp_path / "other") == 2
+        assert len(capsys.readouterr().err.strip().splitlines()) == 1, args
+    assert not (tmp_path / "other").exists()
+    assert [p.name for p in (tmp_path / "ReachTarget-v1").iterdir()] == ["dual_buffer"]  # no staging left
+
