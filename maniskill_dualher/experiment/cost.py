@@ -8,7 +8,9 @@ every episode ends at once on success. The estimate gives that range.
 Time, per run: one SAC update of the run's network and batch size is timed here (a few dozen updates on
 random data, one torch thread, as the sweep's workers run; in CPU time, as the workers start beside it)
 plus a replay-sampling overhead; every env step (training and evaluation, evaluation episodes taken at full
-length) costs an env step plus acting; and each run pays its setup (env construction) before its loop. Each
+length) costs an env step plus acting, also timed here (``env_step_seconds``: a few hundred steps of the run's
+own env, acting through an untrained agent's bare actor as the training loop does; the constants below where the
+env cannot be built here); and each run pays its setup (env construction) before its loop. Each
 worker process pays its imports once. Local wall time = the runs' core-seconds / the workers + one worker's
 imports. The constants are measured (sources beside each); ``bench/results/eta_calibration_cpuB.json`` holds
 the measured wall times they are checked against (tests/test_sweep.py). The report built at the end is not
@@ -35,7 +37,8 @@ from typing import Callable, Dict, List, Optional, Sequence, Tuple
 from ..config import ConfigError
 
 # One env step of our tasks, one thread: 0.87 ms on CPU B (CloseMicrowave, facts 2026-12-03), 0.98 ms on CPU A
-# (py-spy of a quick run, facts 2026-12-02), 0.94-1.04 ms on CPU C (bench/env_speed.py: 961-1063 steps/s).
+# (py-spy of a quick run, facts 2026-12-02), 0.94-1.04 ms on CPU C (bench/env_speed.py: 961-1063 steps/s). Used
+# only where ``env_step_seconds`` cannot time the run's env here (and by the calibration of those machines).
 ENV_STEP_S = 0.93e-3
 # Acting (the actor's forward pass and the step's glue): 3.5% of a quick run's loop, ~0.14 ms per env step
 # (py-spy, CPU A, facts 2026-12-02).
@@ -56,6 +59,7 @@ class Cost:
     updates_high: int
     core_seconds_low: float
     core_seconds_high: float
+    env_steps_per_s: float = 0.0  # the env-step rate (with acting) the estimate used, over these runs
 
 
 def run_updates(cfg) -> Tuple[int, int]:
@@ -113,10 +117,61 @@ def update_seconds(cfg, obs_dim: int = 43, act_dim: int = 8, iters: int = 30, pa
     return _UPDATE_S[key]
 
 
-def grid_cost(cfgs: List, pack: int = 1, update_s: Optional[Callable] = None) -> Cost:
+_STEP_S: Dict[tuple, float] = {}
+STEP_PROBE = 300  # env steps timed per env (after 20 untimed): ~0.1-0.3 s, beside ~2 s to build the env
+
+
+def env_step_seconds(cfg, steps: int = STEP_PROBE) -> float:
+    """Seconds per env step of this run's env with acting, timed here on one thread: the run's ``BatchEnv``
+    stepped by an untrained agent's bare stochastic actor (the training loop's acting), episodes reset as they
+    end. Cached per env; ``ENV_STEP_S + ACT_S`` (measured constants) where the env cannot be built here (a GPU
+    backend without a GPU, a missing package)."""
+    key = (cfg.env_id, cfg.control_mode, cfg.sim_backend, cfg.num_envs, cfg.reward_mode)
+    if key in _STEP_S:
+        return _STEP_S[key]
+    try:
+        import numpy as np
+        import torch
+
+        from .. import tasks  # noqa: F401  (registers our tasks)
+        from ..envs import BatchEnv
+        from ..sac import SAC
+        threads = torch.get_num_threads()
+        torch.set_num_threads(1)
+        env = BatchEnv(cfg)
+        try:
+            agent = SAC(env.spec.input_dim, env.spec.act_dim, cfg.sac, device="cpu",
+                        generator=torch.Generator().manual_seed(0), init_generator=torch.Generator().manual_seed(0))
+            act = agent.stochastic_actor()
+            flat = env.reset(0)
+
+            def run(n):
+                nonlocal flat
+                for k in range(n):
+                    flat, _, term, trunc, _ = env.step(act(env.policy_input(flat)))
+                    done = np.asarray(term) | np.asarray(trunc)
+                    if done.any():
+                        idx = np.flatnonzero(done)
+                        flat[idx] = env.reset_envs(idx, [k + 1 + int(i) for i in idx])
+            run(20)
+            t0 = time.thread_time()
+            run(steps)
+            _STEP_S[key] = (time.thread_time() - t0) / steps / cfg.num_envs
+        finally:
+            env.close()
+            torch.set_num_threads(threads)
+    except Exception:  # noqa: BLE001  (an estimate: fall back to the measured constants)
+        _STEP_S[key] = ENV_STEP_S + ACT_S
+    return _STEP_S[key]
+
+
+def grid_cost(cfgs: List, pack: int = 1, update_s: Optional[Callable] = None,
+              step_s: Optional[Callable] = None) -> Cost:
     """The cost of these runs, updates timed as a worker packing up to ``pack`` runs makes them
-    (``update_s(cfg, pack)``: seconds per update, default timed here by ``update_seconds``)."""
+    (``update_s(cfg, pack)``: seconds per update, default timed here by ``update_seconds``; ``step_s(cfg)``:
+    seconds per env step with acting, default timed here by ``env_step_seconds``)."""
     timed = update_s or (lambda c, p: update_seconds(c, pack=p))
+    stepped = step_s or env_step_seconds
     steps = sum(c.total_steps for c in cfgs)
     lo = hi = 0
     sec_lo = sec_hi = 0.0
@@ -124,11 +179,12 @@ def grid_cost(cfgs: List, pack: int = 1, update_s: Optional[Callable] = None) ->
         u_lo, u_hi = run_updates(c)
         per_update = timed(c, min(pack, len(cfgs))) + SAMPLE_OVERHEAD_S
         evals = (c.total_steps // c.eval_every + 1) * c.eval_episodes * (c.max_episode_steps or 150)
-        fixed = RUN_START_S + (c.total_steps + evals) * (ENV_STEP_S + ACT_S)
+        fixed = RUN_START_S + (c.total_steps + evals) * stepped(c)
         lo, hi = lo + u_lo, hi + u_hi
         sec_lo += fixed + u_lo * per_update
         sec_hi += fixed + u_hi * per_update
-    return Cost(len(cfgs), steps, lo, hi, sec_lo, sec_hi)
+    rate = steps / max(1e-12, sum(c.total_steps * stepped(c) for c in cfgs))
+    return Cost(len(cfgs), steps, lo, hi, sec_lo, sec_hi, rate)
 
 
 def local_wall_seconds(core_seconds: float, runs: int, workers: int) -> float:
@@ -153,8 +209,8 @@ def describe(cost: Cost, workers: int) -> List[str]:
     rng = (lambda f: f(sec[0]) if sec[0] == sec[1] else f"{f(sec[0])} to {f(sec[1])}")
     return [
         f"cost: {cost.env_steps:,} env steps, {upd} gradient updates",
-        f"estimated time (update timed here, env steps at {1 / (ENV_STEP_S + ACT_S):.0f}/s, evaluation and "
-        "startup included, the report not; an estimate, not a measurement):",
+        f"estimated time (updates and env steps timed here: {cost.env_steps_per_s:.0f} env steps/s; evaluation "
+        "and startup included, the report not; an estimate, not a measurement):",
         f"  one CPU core: {rng(_dur)}; this machine with {workers} workers: "
         f"{rng(lambda s: _dur(local_wall_seconds(s, cost.runs, workers)))}",
         f"  a Ray cluster: {rng(lambda s: f'{s / 3600:,.0f} core-hours')} (wall time = that / its CPUs)",
