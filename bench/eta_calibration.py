@@ -91,6 +91,10 @@ def main(argv=None) -> int:
         except ValueError:
             print(f"--add-plan {item!r}: expected NAME=SECONDS:ARGV", file=sys.stderr)
             return 2
+    unknown = [n for n in a.bound_low if n not in names and n not in added]
+    if unknown:
+        print(f"--bound-low {unknown[0]!r}: not one of the plans ({','.join(names + list(added))})", file=sys.stderr)
+        return 2
     from maniskill_dualher import provenance
     from maniskill_dualher.fileio import atomic_write_text
     prov = provenance.provenance(REPO)

@@ -1,0 +1,32 @@
+"""bench/eta_calibration.py: bad input is one line and exit code 2, nothing written; a run writes what the ETA
+test reads."""
+import json
+
+import pytest
+from bench_cli import run_bench
+
+
+def test_bad_input_is_one_line_exit_2(tmp_path):
+    out = tmp_path / "cal.json"
+    for args in (["--plans", "nope"], ["--add-plan", "x"], ["--add-plan", "x=abc:--preset smoke"],
+                 ["--bound-low", "nope"]):
+        r = run_bench("eta_calibration.py", *args, "--out", str(out))
+        assert r.returncode == 2, r.stderr
+        assert len(r.stderr.strip().splitlines()) == 1 and args[1] in r.stderr
+    assert not out.exists()
+
+
+@pytest.mark.slow
+def test_a_calibration_file_holds_what_the_eta_check_reads(tmp_path):
+    """The smoke plan run here, one plan added from elsewhere: the file has the timed inputs per task and every
+    plan's wall time (the ETA test iterates the committed ones)."""
+    out = tmp_path / "cal.json"
+    r = run_bench("eta_calibration.py", "--plans", "smoke", "--add-plan", "other=100:--preset smoke",
+                  "--bound-low", "other", "--out", str(out))
+    assert r.returncode == 0, r.stderr[-2000:]
+    doc = json.loads(out.read_text())
+    assert set(doc["step_s"]["value"]) == {"ReachTarget-v1", "CloseBox-v1", "CloseMicrowave-v1"}
+    assert all(0 < v < 0.05 for v in doc["step_s"]["value"].values())
+    assert 0 < doc["update_s"]["this_machine_64x64"]["value"] < 0.1
+    assert doc["plans"]["smoke"]["wall_s"] > 0 and doc["plans"]["other"] == {
+        "argv": ["--preset", "smoke"], "wall_s": 100.0, "source": "measured elsewhere (--add-plan)", "bound": "low"}
