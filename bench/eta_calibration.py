@@ -4,7 +4,8 @@
                                     [--plans readme_first_command,smoke] [--add-plan NAME=SECONDS:ARGV ...]
 
 Measures, on one thread, idle machine wanted:
-  update_s   one SAC update of the quick preset's dual buffer (``cost.update_seconds``, as the dry run times it)
+  update_s   one SAC update of the quick preset's dual buffer per pack size (``cost.update_seconds``, as the dry
+             run times it: an agent's share of a worker's batched update)
   step_s     one env step with acting per task (``cost.env_step_seconds``, as the dry run times it)
 and runs each plan (a sweep command) from an empty folder in a fresh process with ``--no-report`` (the ETA
 excludes the report), timing it from start to end.
@@ -35,6 +36,7 @@ PLANS = {
     "smoke": ["--preset", "smoke"],
 }
 TASKS = ("ReachTarget-v1", "CloseBox-v1", "CloseMicrowave-v1")
+PACKS = tuple(range(1, 9))  # min(--pack 8, runs): any of these
 
 
 def timed_inputs() -> dict:
@@ -44,10 +46,12 @@ def timed_inputs() -> dict:
     from maniskill_dualher.experiment import cost
     from maniskill_dualher.experiment.presets import preset
     cfg = preset("quick").single_config("dual_buffer", 0, "ReachTarget-v1")
-    upd = cost.update_seconds(cfg, iters=200)
+    # per pack size the dry run asks for (it times a worker's batched update at min(--pack, runs))
+    upd = {str(k): cost.update_seconds(cfg, iters=200, pack=k) for k in PACKS}
     steps = {t: cost.env_step_seconds(preset("quick").single_config("dual_buffer", 0, t), steps=2000) for t in TASKS}
-    return {"update_s": {"this_machine_64x64": {"value": upd, "source": "cost.update_seconds (quick preset's dual "
-                                                                        "buffer, 200 updates, one thread), here"}},
+    return {"update_s": {"this_machine_64x64": {"value": upd, "source": "cost.update_seconds per pack size (quick "
+                                                                        "preset's dual buffer, 200 updates, one "
+                                                                        "thread; an agent's share), here"}},
             "step_s": {"value": steps, "source": "cost.env_step_seconds per task (2000 env steps with acting, one "
                                                  "thread), here"}}
 

@@ -27,6 +27,7 @@ def test_a_calibration_file_holds_what_the_eta_check_reads(tmp_path):
     doc = json.loads(out.read_text())
     assert set(doc["step_s"]["value"]) == {"ReachTarget-v1", "CloseBox-v1", "CloseMicrowave-v1"}
     assert all(0 < v < 0.05 for v in doc["step_s"]["value"].values())
-    assert 0 < doc["update_s"]["this_machine_64x64"]["value"] < 0.1
+    assert set(doc["update_s"]["this_machine_64x64"]["value"]) == {str(k) for k in range(1, 9)}
+    assert all(0 < v < 0.1 for v in doc["update_s"]["this_machine_64x64"]["value"].values())
     assert doc["plans"]["smoke"]["wall_s"] > 0 and doc["plans"]["other"] == {
         "argv": ["--preset", "smoke"], "wall_s": 100.0, "source": "measured elsewhere (--add-plan)", "bound": "low"}

@@ -549,8 +549,9 @@ def test_eta_within_25_percent_of_measured_wall_times(path):
     for name, plan in cal["plans"].items():
         nodes = build_grid(sweep.definition_from_args(sweep.make_parser().parse_args(plan["argv"])))
         for upd in cal["update_s"].values():
-            cost = grid_cost([n.cfg for n in nodes], plan.get("pack", sweep.DEFAULT_PACK),
-                             update_s=lambda c, p: upd["value"], step_s=step_s)
+            # one value for every pack size (the older files), or one per pack size
+            per = (lambda c, p: upd["value"][str(p)]) if isinstance(upd["value"], dict) else (lambda c, p: upd["value"])
+            cost = grid_cost([n.cfg for n in nodes], plan.get("pack", sweep.DEFAULT_PACK), update_s=per, step_s=step_s)
             eta = local_wall_seconds(cost.core_seconds_high if plan.get("bound") != "low" else cost.core_seconds_low,
                                      cost.runs, cal["workers"])
             assert (1 - band) * plan["wall_s"] <= eta <= (1 + band) * plan["wall_s"], (name, upd, eta)
