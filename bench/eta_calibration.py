@@ -3,10 +3,10 @@
     python bench/eta_calibration.py --out bench/results/eta_calibration_<machine>_<commit>.json [--load NOTE]
                                     [--plans readme_first_command,smoke] [--add-plan NAME=SECONDS:ARGV ...]
 
-Measures, on one thread, idle machine wanted:
-  update_s   one SAC update of the quick preset's dual buffer per pack size (``cost.update_seconds``, as the dry
-             run times it: an agent's share of a worker's batched update)
-  step_s     one env step with acting per task (``cost.env_step_seconds``, as the dry run times it)
+Measures per plan, on one thread, idle machine wanted, what the dry run times for it:
+  update_s   one SAC update of each of its runs' networks and batches at the pack size its workers batch
+             (``cost.update_seconds``: an agent's share of a batched update), keyed by what it depends on
+  step_s     one env step with acting of each of its envs (``cost.env_step_seconds``)
 and runs each plan (a sweep command) from an empty folder in a fresh process with ``--no-report`` (the ETA
 excludes the report), timing it from start to end.
 ``tests/test_sweep.py::test_eta_within_25_percent_of_measured_wall_times`` feeds the model these timed inputs
@@ -35,25 +35,34 @@ PLANS = {
     "readme_first_command": ["--experiments", "single", "--tasks", "ReachTarget-v1", "--seeds", "3"],
     "smoke": ["--preset", "smoke"],
 }
-TASKS = ("ReachTarget-v1", "CloseBox-v1", "CloseMicrowave-v1")
-PACKS = tuple(range(1, 9))  # min(--pack 8, runs): any of these
 
 
-def timed_inputs() -> dict:
+def _key(cfg, pack: int) -> str:
+    """What an update's time depends on (``cost.update_seconds``'s cache key, as text)."""
+    sac = cfg.sac
+    return f"{'x'.join(map(str, sac.hidden))}|b{sac.batch_size}|{sac.variant}|pack{pack}"
+
+
+def timed_inputs(argv) -> dict:
+    """The dry run's timed inputs for one plan, timed here as the dry run times them: each run's update seconds
+    at the pack size its worker batches (``min(--pack, runs)``) and each env's step seconds with acting."""
     import torch
     torch.set_num_threads(1)
     import maniskill_dualher.tasks  # noqa: F401
-    from maniskill_dualher.experiment import cost
-    from maniskill_dualher.experiment.presets import preset
-    cfg = preset("quick").single_config("dual_buffer", 0, "ReachTarget-v1")
-    # per pack size the dry run asks for (it times a worker's batched update at min(--pack, runs))
-    upd = {str(k): cost.update_seconds(cfg, iters=200, pack=k) for k in PACKS}
-    steps = {t: cost.env_step_seconds(preset("quick").single_config("dual_buffer", 0, t), steps=2000) for t in TASKS}
-    return {"update_s": {"this_machine_64x64": {"value": upd, "source": "cost.update_seconds per pack size (quick "
-                                                                        "preset's dual buffer, 200 updates, one "
-                                                                        "thread; an agent's share), here"}},
-            "step_s": {"value": steps, "source": "cost.env_step_seconds per task (2000 env steps with acting, one "
-                                                 "thread), here"}}
+    from maniskill_dualher.experiment import cost, sweep
+    from maniskill_dualher.experiment.grid import build_grid
+    from maniskill_dualher.pack import pack_key
+    args = sweep.make_parser().parse_args(argv)
+    cfgs = [n.cfg for n in build_grid(sweep.definition_from_args(args))]
+    pack = min(args.pack or sweep.DEFAULT_PACK, len(cfgs))
+    upd, steps = {}, {}
+    for c in cfgs:
+        k = _key(c, pack if pack_key(c) is not None else 1)
+        if k not in upd:
+            upd[k] = cost.update_seconds(c, iters=200, pack=pack)
+        if c.env_id not in steps:
+            steps[c.env_id] = cost.env_step_seconds(c, steps=2000)
+    return {"update_s": upd, "step_s": steps, "pack": pack}
 
 
 def run_plan(argv, workers: int) -> float:
@@ -92,6 +101,7 @@ def main(argv=None) -> int:
             name, rest = item.split("=", 1)
             secs, args = rest.split(":", 1)
             added[name] = {"argv": args.split(), "wall_s": float(secs), "source": "measured elsewhere (--add-plan)"}
+            added[name].update(timed_inputs(added[name]["argv"]))
         except ValueError:
             print(f"--add-plan {item!r}: expected NAME=SECONDS:ARGV", file=sys.stderr)
             return 2
@@ -107,11 +117,11 @@ def main(argv=None) -> int:
            "command": " ".join(["bench/eta_calibration.py"] + list(argv if argv is not None else sys.argv[1:])),
            "machine": provenance.machine_name(prov["cpu"]), "provenance": prov, "load": a.load,
            "band": a.band, "workers": a.workers}
-    doc.update(timed_inputs())
     plans = {}
     for name in names:
+        inputs = timed_inputs(PLANS[name])
         wall = run_plan(PLANS[name], a.workers)
-        plans[name] = {"argv": PLANS[name], "wall_s": round(wall, 1),
+        plans[name] = {"argv": PLANS[name], "wall_s": round(wall, 1), **inputs,
                        "source": f"run here: python -m maniskill_dualher.sweep {' '.join(PLANS[name])} --out TMP "
                                  f"--workers {a.workers} --no-report, from start to end"}
         print(f"{name}: {wall:.1f} s", flush=True)

@@ -25,9 +25,10 @@ def test_a_calibration_file_holds_what_the_eta_check_reads(tmp_path):
                   "--bound-low", "other", "--out", str(out))
     assert r.returncode == 0, r.stderr[-2000:]
     doc = json.loads(out.read_text())
-    assert set(doc["step_s"]["value"]) == {"ReachTarget-v1", "CloseBox-v1", "CloseMicrowave-v1"}
-    assert all(0 < v < 0.05 for v in doc["step_s"]["value"].values())
-    assert set(doc["update_s"]["this_machine_64x64"]["value"]) == {str(k) for k in range(1, 9)}
-    assert all(0 < v < 0.1 for v in doc["update_s"]["this_machine_64x64"]["value"].values())
-    assert doc["plans"]["smoke"]["wall_s"] > 0 and doc["plans"]["other"] == {
-        "argv": ["--preset", "smoke"], "wall_s": 100.0, "source": "measured elsewhere (--add-plan)", "bound": "low"}
+    smoke = doc["plans"]["smoke"]
+    assert set(smoke["step_s"]) == {"ReachTarget-v1", "CloseBox-v1", "CloseMicrowave-v1"}
+    assert all(0 < v < 0.05 for v in smoke["step_s"].values()) and smoke["pack"] >= 1
+    assert smoke["update_s"] and all(0 < v < 0.1 for v in smoke["update_s"].values())
+    other = doc["plans"]["other"]
+    assert smoke["wall_s"] > 0 and other["wall_s"] == 100.0 and other["bound"] == "low"
+    assert set(other["update_s"]) == set(smoke["update_s"]) and set(other["step_s"]) == set(smoke["step_s"])
