@@ -7,6 +7,7 @@ Measures per plan, on one thread, idle machine wanted, what the dry run times fo
   update_s   one SAC update of each of its runs' networks and batches at the pack size its workers batch
              (``cost.update_seconds``: an agent's share of a batched update), keyed by what it depends on
   step_s     one env step with acting of each of its envs (``cost.env_step_seconds``)
+  start_s    building each of its envs (``cost.run_start_seconds``: a run's setup before its loop)
 and runs each plan (a sweep command) from an empty folder in a fresh process with ``--no-report`` (the ETA
 excludes the report), timing it from start to end.
 ``tests/test_sweep.py::test_eta_within_25_percent_of_measured_wall_times`` feeds the model these timed inputs
@@ -55,14 +56,15 @@ def timed_inputs(argv) -> dict:
     args = sweep.make_parser().parse_args(argv)
     cfgs = [n.cfg for n in build_grid(sweep.definition_from_args(args))]
     pack = min(args.pack or sweep.DEFAULT_PACK, len(cfgs))
-    upd, steps = {}, {}
+    upd, steps, starts = {}, {}, {}
     for c in cfgs:
         k = _key(c, pack if pack_key(c) is not None else 1)
         if k not in upd:
             upd[k] = cost.update_seconds(c, iters=200, pack=pack)
         if c.env_id not in steps:
             steps[c.env_id] = cost.env_step_seconds(c, steps=2000)
-    return {"update_s": upd, "step_s": steps, "pack": pack}
+            starts[c.env_id] = cost.run_start_seconds(c)
+    return {"update_s": upd, "step_s": steps, "start_s": starts, "pack": pack}
 
 
 def run_plan(argv, workers: int) -> float:

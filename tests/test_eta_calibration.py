@@ -28,6 +28,7 @@ def test_a_calibration_file_holds_what_the_eta_check_reads(tmp_path):
     smoke = doc["plans"]["smoke"]
     assert set(smoke["step_s"]) == {"ReachTarget-v1", "CloseBox-v1", "CloseMicrowave-v1"}
     assert all(0 < v < 0.05 for v in smoke["step_s"].values()) and smoke["pack"] >= 1
+    assert set(smoke["start_s"]) == set(smoke["step_s"]) and all(0 < v < 60 for v in smoke["start_s"].values())
     assert smoke["update_s"] and all(0 < v < 0.1 for v in smoke["update_s"].values())
     other = doc["plans"]["other"]
     assert smoke["wall_s"] > 0 and other["wall_s"] == 100.0 and other["bound"] == "low"

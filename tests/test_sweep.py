@@ -543,7 +543,7 @@ def test_eta_within_25_percent_of_measured_wall_times(path):
     with the update and env-step seconds timed there in place of the live timing (this machine may be busy or
     another kind). Older files hold one update time and one env-step time per machine; newer ones, per plan,
     what the dry run times for it (``bench/eta_calibration.py``)."""
-    from maniskill_dualher.experiment.cost import grid_cost, local_wall_seconds
+    from maniskill_dualher.experiment.cost import RUN_START_S, grid_cost, local_wall_seconds
     from maniskill_dualher.pack import pack_key
     cal = json.loads(path.read_text())
     band = cal["band"]
@@ -552,13 +552,14 @@ def test_eta_within_25_percent_of_measured_wall_times(path):
         if "update_s" in plan:  # timed per plan: keyed as cost.update_seconds caches them
             key = lambda c, p: f"{'x'.join(map(str, c.sac.hidden))}|b{c.sac.batch_size}|{c.sac.variant}|pack{p}"  # noqa: E731
             inputs = [(lambda c, p: plan["update_s"][key(c, p if pack_key(c) is not None else 1)],
-                       lambda c: plan["step_s"][c.env_id])]
+                       lambda c: plan["step_s"][c.env_id], lambda c: plan["start_s"][c.env_id])]
         else:
             step = cal["step_s"]["value"]
-            inputs = [((lambda c, p, v=upd["value"]: v), (lambda c: step)) for upd in cal["update_s"].values()]
-        for update_s, step_s in inputs:
+            inputs = [((lambda c, p, v=upd["value"]: v), (lambda c: step), (lambda c: RUN_START_S))
+                      for upd in cal["update_s"].values()]
+        for update_s, step_s, start_s in inputs:
             cost = grid_cost([n.cfg for n in nodes], plan.get("pack", sweep.DEFAULT_PACK), update_s=update_s,
-                             step_s=step_s)
+                             step_s=step_s, start_s=start_s)
             eta = local_wall_seconds(cost.core_seconds_low if plan.get("bound") == "low" else cost.core_seconds_high,
                                      cost.runs, cal["workers"])
             assert (1 - band) * plan["wall_s"] <= eta <= (1 + band) * plan["wall_s"], (name, eta)
@@ -574,8 +575,9 @@ def test_env_step_seconds_times_the_runs_env_here_or_falls_back():
     cfg = preset("smoke").single_config("sac_her_per", 0, "ReachTarget-v1")
     s = cost.env_step_seconds(cfg, steps=50)
     assert 1e-5 < s < 0.05 and cost.env_step_seconds(cfg) == s  # timed once, then cached
+    assert 0 < cost.run_start_seconds(cfg) < 60
     bad = dataclasses.replace(cfg, env_id="NoSuchEnv-v9")
-    assert cost.env_step_seconds(bad) == cost.ENV_STEP_S + cost.ACT_S
+    assert cost.env_step_seconds(bad) == cost.ENV_STEP_S + cost.ACT_S and cost.run_start_seconds(bad) == cost.RUN_START_S
 
 
 def test_seeds_settings_and_dry_run(tmp_path, capsys):

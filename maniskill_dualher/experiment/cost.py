@@ -46,7 +46,8 @@ ACT_S = 0.14e-3
 SAMPLE_OVERHEAD_S = 0.6e-3    # prioritized sample 256 + priority write-back (bench/replay_speed.py: 0.28 ms;
 #                               py-spy of a quick run: 0.33 ms per update) + HER relabelling and glue
 # Before a process's first loop: ~12 s, of which ~10 s imports (py-spy, CPU A, facts 2026-12-02). A pool worker
-# imports once; each run builds its envs (the other ~2 s).
+# imports once; each run builds its envs (the other ~2 s there; timed here by run_start_seconds, RUN_START_S only
+# where the env cannot be built here).
 WORKER_START_S = 10.0
 RUN_START_S = 2.0
 
@@ -118,6 +119,11 @@ def update_seconds(cfg, obs_dim: int = 43, act_dim: int = 8, iters: int = 30, pa
 
 
 _STEP_S: Dict[tuple, float] = {}
+_START_S: Dict[tuple, float] = {}
+
+
+def _env_key(cfg) -> tuple:
+    return (cfg.env_id, cfg.control_mode, cfg.sim_backend, cfg.num_envs, cfg.reward_mode)
 STEP_PROBE = 300  # env steps timed per env (after 20 untimed): ~0.1-0.3 s, beside ~2 s to build the env
 
 
@@ -126,7 +132,7 @@ def env_step_seconds(cfg, steps: int = STEP_PROBE) -> float:
     stepped by an untrained agent's bare stochastic actor (the training loop's acting), episodes reset as they
     end. Cached per env; ``ENV_STEP_S + ACT_S`` (measured constants) where the env cannot be built here (a GPU
     backend without a GPU, a missing package)."""
-    key = (cfg.env_id, cfg.control_mode, cfg.sim_backend, cfg.num_envs, cfg.reward_mode)
+    key = _env_key(cfg)
     if key in _STEP_S:
         return _STEP_S[key]
     try:
@@ -138,7 +144,9 @@ def env_step_seconds(cfg, steps: int = STEP_PROBE) -> float:
         from ..sac import SAC
         threads = torch.get_num_threads()
         torch.set_num_threads(1)
+        t_build = time.thread_time()
         env = BatchEnv(cfg)
+        _START_S[key] = time.thread_time() - t_build
         try:
             agent = SAC(env.spec.input_dim, env.spec.act_dim, cfg.sac, device="cpu",
                         generator=torch.Generator().manual_seed(0), init_generator=torch.Generator().manual_seed(0))
@@ -161,17 +169,26 @@ def env_step_seconds(cfg, steps: int = STEP_PROBE) -> float:
             env.close()
             torch.set_num_threads(threads)
     except Exception:  # noqa: BLE001  (an estimate: fall back to the measured constants)
-        _STEP_S[key] = ENV_STEP_S + ACT_S
+        _STEP_S[key], _START_S[key] = ENV_STEP_S + ACT_S, RUN_START_S
     return _STEP_S[key]
 
 
+def run_start_seconds(cfg) -> float:
+    """Seconds to build this run's env here (thread CPU time; timed by ``env_step_seconds``'s probe, which it
+    runs if needed); ``RUN_START_S`` where the env cannot be built here."""
+    env_step_seconds(cfg)
+    return _START_S[_env_key(cfg)]
+
+
 def grid_cost(cfgs: List, pack: int = 1, update_s: Optional[Callable] = None,
-              step_s: Optional[Callable] = None) -> Cost:
+              step_s: Optional[Callable] = None, start_s: Optional[Callable] = None) -> Cost:
     """The cost of these runs, updates timed as a worker packing up to ``pack`` runs makes them
     (``update_s(cfg, pack)``: seconds per update, default timed here by ``update_seconds``; ``step_s(cfg)``:
-    seconds per env step with acting, default timed here by ``env_step_seconds``)."""
+    seconds per env step with acting, default timed here by ``env_step_seconds``; ``start_s(cfg)``: a run's setup
+    before its loop, default its env's build timed here by ``run_start_seconds``)."""
     timed = update_s or (lambda c, p: update_seconds(c, pack=p))
     stepped = step_s or env_step_seconds
+    started = start_s or run_start_seconds
     steps = sum(c.total_steps for c in cfgs)
     lo = hi = 0
     sec_lo = sec_hi = 0.0
@@ -179,7 +196,7 @@ def grid_cost(cfgs: List, pack: int = 1, update_s: Optional[Callable] = None,
         u_lo, u_hi = run_updates(c)
         per_update = timed(c, min(pack, len(cfgs))) + SAMPLE_OVERHEAD_S
         evals = (c.total_steps // c.eval_every + 1) * c.eval_episodes * (c.max_episode_steps or 150)
-        fixed = RUN_START_S + (c.total_steps + evals) * stepped(c)
+        fixed = started(c) + (c.total_steps + evals) * stepped(c)
         lo, hi = lo + u_lo, hi + u_hi
         sec_lo += fixed + u_lo * per_update
         sec_hi += fixed + u_hi * per_update
