@@ -8,6 +8,7 @@ Measures per plan, on one thread, idle machine wanted, what the dry run times fo
              (``cost.update_seconds``: an agent's share of a batched update), keyed by what it depends on
   step_s     one env step with acting of each of its envs (``cost.env_step_seconds``)
   start_s    building each of its envs (``cost.run_start_seconds``: a run's setup before its loop)
+  worker_start_s  a fresh worker's imports (``cost.worker_start_seconds``)
 and runs each plan (a sweep command) from an empty folder in a fresh process with ``--no-report`` (the ETA
 excludes the report), timing it from start to end.
 ``tests/test_sweep.py::test_eta_within_25_percent_of_measured_wall_times`` feeds the model these timed inputs
@@ -64,7 +65,8 @@ def timed_inputs(argv) -> dict:
         if c.env_id not in steps:
             steps[c.env_id] = cost.env_step_seconds(c, steps=2000)
             starts[c.env_id] = cost.run_start_seconds(c)
-    return {"update_s": upd, "step_s": steps, "start_s": starts, "pack": pack}
+    return {"update_s": upd, "step_s": steps, "start_s": starts, "pack": pack,
+            "worker_start_s": cost.worker_start_seconds()}
 
 
 def run_plan(argv, workers: int) -> float:

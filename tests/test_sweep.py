@@ -543,7 +543,7 @@ def test_eta_within_25_percent_of_measured_wall_times(path):
     with the update and env-step seconds timed there in place of the live timing (this machine may be busy or
     another kind). Older files hold one update time and one env-step time per machine; newer ones, per plan,
     what the dry run times for it (``bench/eta_calibration.py``)."""
-    from maniskill_dualher.experiment.cost import RUN_START_S, grid_cost, local_wall_seconds
+    from maniskill_dualher.experiment.cost import RUN_START_S, WORKER_START_S, grid_cost, local_wall_seconds
     from maniskill_dualher.pack import pack_key
     cal = json.loads(path.read_text())
     band = cal["band"]
@@ -561,7 +561,7 @@ def test_eta_within_25_percent_of_measured_wall_times(path):
             cost = grid_cost([n.cfg for n in nodes], plan.get("pack", sweep.DEFAULT_PACK), update_s=update_s,
                              step_s=step_s, start_s=start_s)
             eta = local_wall_seconds(cost.core_seconds_low if plan.get("bound") == "low" else cost.core_seconds_high,
-                                     cost.runs, cal["workers"])
+                                     cost.runs, cal["workers"], plan.get("worker_start_s", WORKER_START_S))
             assert (1 - band) * plan["wall_s"] <= eta <= (1 + band) * plan["wall_s"], (name, eta)
 
 
@@ -575,7 +575,7 @@ def test_env_step_seconds_times_the_runs_env_here_or_falls_back():
     cfg = preset("smoke").single_config("sac_her_per", 0, "ReachTarget-v1")
     s = cost.env_step_seconds(cfg, steps=50)
     assert 1e-5 < s < 0.05 and cost.env_step_seconds(cfg) == s  # timed once, then cached
-    assert 0 < cost.run_start_seconds(cfg) < 60
+    assert 0 < cost.run_start_seconds(cfg) < 60 and 0 < cost.worker_start_seconds() < 120
     bad = dataclasses.replace(cfg, env_id="NoSuchEnv-v9")
     assert cost.env_step_seconds(bad) == cost.ENV_STEP_S + cost.ACT_S and cost.run_start_seconds(bad) == cost.RUN_START_S
 

@@ -45,8 +45,8 @@ ENV_STEP_S = 0.93e-3
 ACT_S = 0.14e-3
 SAMPLE_OVERHEAD_S = 0.6e-3    # prioritized sample 256 + priority write-back (bench/replay_speed.py: 0.28 ms;
 #                               py-spy of a quick run: 0.33 ms per update) + HER relabelling and glue
-# Before a process's first loop: ~12 s, of which ~10 s imports (py-spy, CPU A, facts 2026-12-02). A pool worker
-# imports once; each run builds its envs (the other ~2 s there; timed here by run_start_seconds, RUN_START_S only
+# Before a process's first loop: ~12 s, of which ~10 s imports (py-spy, CPU A, facts 2026-12-02); timed here by
+# worker_start_seconds, WORKER_START_S only where that fails. A pool worker imports once; each run builds its envs (the other ~2 s there; timed here by run_start_seconds, RUN_START_S only
 # where the env cannot be built here).
 WORKER_START_S = 10.0
 RUN_START_S = 2.0
@@ -204,9 +204,31 @@ def grid_cost(cfgs: List, pack: int = 1, update_s: Optional[Callable] = None,
     return Cost(len(cfgs), steps, lo, hi, sec_lo, sec_hi, rate)
 
 
-def local_wall_seconds(core_seconds: float, runs: int, workers: int) -> float:
-    """Wall time on this machine: the runs shared over the workers, each worker importing once in parallel."""
-    return core_seconds / max(1, min(workers, runs)) + WORKER_START_S
+_WORKER_START: List[float] = []
+
+
+def worker_start_seconds() -> float:
+    """Seconds a fresh worker process takes to import what a run needs (torch, SAPIEN, ManiSkill, this package),
+    timed here once in a subprocess; ``WORKER_START_S`` if that fails."""
+    if not _WORKER_START:
+        import subprocess
+        import sys
+        code = "import maniskill_dualher.train, maniskill_dualher.tasks, mani_skill.envs"
+        t0 = time.perf_counter()
+        try:
+            r = subprocess.run([sys.executable, "-c", code], capture_output=True, timeout=120)
+            _WORKER_START.append(time.perf_counter() - t0 if r.returncode == 0 else WORKER_START_S)
+        except (OSError, subprocess.SubprocessError):
+            _WORKER_START.append(WORKER_START_S)
+    return _WORKER_START[0]
+
+
+def local_wall_seconds(core_seconds: float, runs: int, workers: int,
+                       worker_start: Optional[float] = None) -> float:
+    """Wall time on this machine: the runs shared over the workers, each worker importing once in parallel
+    (``worker_start``: its seconds, default timed here by ``worker_start_seconds``)."""
+    start = worker_start_seconds() if worker_start is None else worker_start
+    return core_seconds / max(1, min(workers, runs)) + start
 
 
 def _dur(seconds: float) -> str:
