@@ -186,6 +186,8 @@ def grid_cost(cfgs: List, pack: int = 1, update_s: Optional[Callable] = None,
     (``update_s(cfg, pack)``: seconds per update, default timed here by ``update_seconds``; ``step_s(cfg)``:
     seconds per env step with acting, default timed here by ``env_step_seconds``; ``start_s(cfg)``: a run's setup
     before its loop, default its env's build timed here by ``run_start_seconds``)."""
+    if update_s is None or step_s is None:
+        start_worker_probe()  # overlaps the timings below (local_wall_seconds collects it)
     timed = update_s or (lambda c, p: update_seconds(c, pack=p))
     stepped = step_s or env_step_seconds
     started = start_s or run_start_seconds
@@ -205,30 +207,45 @@ def grid_cost(cfgs: List, pack: int = 1, update_s: Optional[Callable] = None,
 
 
 _WORKER_START: List[float] = []
+_WORKER_PROBE: List = []  # the thread timing it, started by grid_cost so that it overlaps the other timings
+
+
+def _time_worker_start() -> None:
+    import subprocess
+    import sys
+    code = "import maniskill_dualher.train, maniskill_dualher.tasks, mani_skill.envs"
+    t0 = time.perf_counter()
+    try:
+        r = subprocess.run([sys.executable, "-c", code], capture_output=True, timeout=120)
+        _WORKER_START.append(time.perf_counter() - t0 if r.returncode == 0 else WORKER_START_S)
+    except (OSError, subprocess.SubprocessError):
+        _WORKER_START.append(WORKER_START_S)
+
+
+def start_worker_probe() -> None:
+    """Begin timing a worker's imports in the background (a subprocess; ``worker_start_seconds`` collects it)."""
+    import threading
+    if not _WORKER_START and not _WORKER_PROBE:
+        t = threading.Thread(target=_time_worker_start, daemon=True)
+        t.start()
+        _WORKER_PROBE.append(t)
 
 
 def worker_start_seconds() -> float:
     """Seconds a fresh worker process takes to import what a run needs (torch, SAPIEN, ManiSkill, this package),
     timed here once in a subprocess; ``WORKER_START_S`` if that fails."""
-    if not _WORKER_START:
-        import subprocess
-        import sys
-        code = "import maniskill_dualher.train, maniskill_dualher.tasks, mani_skill.envs"
-        t0 = time.perf_counter()
-        try:
-            r = subprocess.run([sys.executable, "-c", code], capture_output=True, timeout=120)
-            _WORKER_START.append(time.perf_counter() - t0 if r.returncode == 0 else WORKER_START_S)
-        except (OSError, subprocess.SubprocessError):
-            _WORKER_START.append(WORKER_START_S)
+    start_worker_probe()
+    _WORKER_PROBE[0].join()
     return _WORKER_START[0]
 
 
 def local_wall_seconds(core_seconds: float, runs: int, workers: int,
                        worker_start: Optional[float] = None) -> float:
     """Wall time on this machine: the runs shared over the workers, each worker importing once in parallel
-    (``worker_start``: its seconds, default timed here by ``worker_start_seconds``)."""
+    (``worker_start``: its seconds, default timed here by ``worker_start_seconds``), after the sweep process's own
+    imports and planning (about one worker's start)."""
     start = worker_start_seconds() if worker_start is None else worker_start
-    return core_seconds / max(1, min(workers, runs)) + start
+    return core_seconds / max(1, min(workers, runs)) + 2 * start
 
 
 def _dur(seconds: float) -> str:
