@@ -49,12 +49,15 @@ def _tables(out: Path) -> dict:
     return {name: (out / name).read_bytes() for name in TABLES}
 
 
-def _stage_in_flight(out: Path, min_stage: int = 1):
-    """A chain stage >= min_stage with a checkpoint and a progress file but not finished, or None."""
-    for ckpt in sorted(out.glob("runs/chain/*/stage*/checkpoint.pt")):
-        d = ckpt.parent
+def _stage_in_flight(out: Path, min_stage: int = 1, started: bool = False):
+    """A chain stage >= min_stage with a checkpoint and a progress file but not finished, or None. ``started``:
+    any stage that has started (its provenance written) and not finished, checkpoint or not: the widest window
+    (a smoke stage lasts ~1 s on a fast CPU, less than removing a Ray node takes)."""
+    name = rundir.PROVENANCE if started else "checkpoint.pt"
+    for f in sorted(out.glob(f"runs/chain/*/stage*/{name}")):
+        d = f.parent
         if int(d.name[len("stage"):].split("-")[0]) >= min_stage and not rundir.is_done(d) \
-                and backends.read_progress(d):
+                and (started or backends.read_progress(d)):
             return d
     return None
 
@@ -160,7 +163,7 @@ def test_ray_cluster_node_removed_midrun_sweep_finishes_same_tables(reference, t
         p = _popen_sweep(log, *CHAIN, "--out", str(out), "--backend", "ray", "--ray-address", cluster.address)
         deadline, victim = time.time() + 300, None
         while time.time() < deadline and p.poll() is None and victim is None:
-            victim = _stage_in_flight(out)
+            victim = _stage_in_flight(out, started=True)
             time.sleep(0.01)
         assert victim is not None, "no stage was in flight: " + log.read_text()[-2000:]
         cluster.remove_node(node, allow_graceful=False)
