@@ -244,12 +244,6 @@ def card_text(doc: dict) -> str:
     return "\n".join(lines)
 
 
-def _metrics_rows(run: Path) -> List[dict]:
-    import csv
-    with open(run / "metrics.csv", newline="") as f:
-        return list(csv.DictReader(f))
-
-
 def _sweep_root(run: Path) -> Optional[Path]:
     """The sweep folder a run folder belongs to (the nearest parent with ``sweep.json``), if any."""
     for parent in run.resolve().parents:
@@ -286,13 +280,14 @@ def export_doc(run: Path, which: Optional[str] = None) -> dict:
     best for a single-task run, final for a transfer stage), all read from the run's own files. Raises
     ValueError (one line naming what is missing) if the run cannot be exported."""
     from . import provenance as prov_mod
-    from .rundir import CONFIG, DONE, POLICY, POLICY_BEST, PROVENANCE, STAGE
+    from . import rundir
+    from .rundir import CELL, CONFIG, DONE, POLICY, POLICY_BEST, PROVENANCE
     run = Path(run)
     for name in (CONFIG, DONE, PROVENANCE, "metrics.csv"):
         if not (run / name).is_file():
             raise ValueError(f"{run}: no {name} (an export needs a finished run folder)")
     cfg = json.loads((run / CONFIG).read_text())
-    stage = json.loads((run / STAGE).read_text()) if (run / STAGE).is_file() else None
+    stage = rundir.read_stage(run)
     transfer = bool(stage and stage.get("adaptation"))
     which = which or ("final" if transfer else "best")
     if which not in ("best", "final"):
@@ -300,7 +295,7 @@ def export_doc(run: Path, which: Optional[str] = None) -> dict:
     src = run / (POLICY_BEST if which == "best" else POLICY)
     if not src.is_file():
         raise ValueError(f"{run}: no {src.name}")
-    rows = [r for r in _metrics_rows(run) if r.get("eval_success_rate") not in (None, "")]
+    rows = [r for r in rundir.read_metrics(run) if r.get("eval_success_rate") not in (None, "")]
     if not rows:
         raise ValueError(f"{run}: metrics.csv has no evaluation row")
     best = max(rows, key=lambda r: float(r["eval_success_rate"]))  # max keeps the earliest of a tie, as policy_best
@@ -329,12 +324,12 @@ def export_doc(run: Path, which: Optional[str] = None) -> dict:
     }
     if transfer:
         root = _sweep_root(run)
-        sweep = json.loads((root / "sweep.json").read_text()) if root else {}
-        cell = json.loads((run / "cell.json").read_text())["cells"][0] if (run / "cell.json").is_file() else {}
+        sweep = (rundir.read_sweep(root) if root else None) or {}
+        cell = (rundir.read_json(run / CELL) or {"cells": [{}]})["cells"][0]
         steps, folder = [], run  # each stage's env steps, walking the parents back to the first stage
         while folder is not None:
             steps.insert(0, int(json.loads((folder / CONFIG).read_text())["total_steps"]))
-            st = json.loads((folder / STAGE).read_text()) if (folder / STAGE).is_file() else {}
+            st = rundir.read_stage(folder) or {}
             folder = folder.parent / st["parent"] if st.get("parent") else None
         doc["transfer"] = {
             "chain": list(stage["chain"]), "stage_env_steps": steps, "carry_replay": bool(stage.get("carry_replay")),

@@ -46,8 +46,8 @@ ACT_S = 0.14e-3
 SAMPLE_OVERHEAD_S = 0.6e-3    # prioritized sample 256 + priority write-back (bench/replay_speed.py: 0.28 ms;
 #                               py-spy of a quick run: 0.33 ms per update) + HER relabelling and glue
 # Before a process's first loop: ~12 s, of which ~10 s imports (py-spy, CPU A, facts 2026-12-02); timed here by
-# worker_start_seconds, WORKER_START_S only where that fails. A pool worker imports once; each run builds its envs (the other ~2 s there; timed here by run_start_seconds, RUN_START_S only
-# where the env cannot be built here).
+# worker_start_seconds, WORKER_START_S only where that fails. A pool worker imports once; each run builds its
+# envs (the other ~2 s there; timed here by run_start_seconds, RUN_START_S only where the env cannot be built).
 WORKER_START_S = 10.0
 RUN_START_S = 2.0
 
@@ -124,6 +124,8 @@ _START_S: Dict[tuple, float] = {}
 
 def _env_key(cfg) -> tuple:
     return (cfg.env_id, cfg.control_mode, cfg.sim_backend, cfg.num_envs, cfg.reward_mode)
+
+
 STEP_PROBE = 300  # env steps timed per env (after 20 untimed): ~0.1-0.3 s, beside ~2 s to build the env
 
 
