@@ -24,26 +24,20 @@ import ctypes
 import errno
 import os
 import shutil
-import signal
 import sys
 import uuid
 from pathlib import Path
 from typing import Iterable, List, Optional
+
+from .faults import KILL_AT, kill_point  # noqa: F401  (the tests kill a report at named moments)
 
 try:
     import fcntl
 except ImportError:  # not POSIX: no lock between two reports (their business)
     fcntl = None  # type: ignore[assignment]
 
-KILL_AT = "MANISKILL_DUALHER_KILL_AT"   # tests: this process SIGKILLs itself at the named point
 EXCHANGE = True                          # tests set it False to take the two-rename path
 INSIDE_NEW, INSIDE_READY = ".report-new", ".report-ready"
-
-
-def kill_point(name: str) -> None:
-    """For the tests that kill a report at named moments (``$MANISKILL_DUALHER_KILL_AT``); else nothing."""
-    if os.environ.get(KILL_AT) == name:
-        os.kill(os.getpid(), signal.SIGKILL)
 
 
 def _exchange(a: Path, b: Path) -> bool:

@@ -41,6 +41,7 @@ from .config import ConfigError, RunConfig
 from .counters import Counters
 from .envs import EVAL_SEED_BASE, BatchEnv, make_env, train_episode_seed
 from .episodes import EnvEpisodes, Score
+from .faults import hold_point
 from .pack import Updater
 from .policy import save_policy
 from .replay.base import Episode
@@ -493,6 +494,7 @@ class Trainer:
             c.wall_time = time.perf_counter() - self._t0
             self._check_finite()
             self.save_checkpoint()
+            hold_point(f"checkpoint:{self.out}")  # the scale-out tests remove a worker here
             self._next_ckpt = self._next(self.cfg.checkpoint_every)
         if stopping:
             self._close_logs()

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from maniskill_dualher import rundir
+from maniskill_dualher import faults, rundir
 from maniskill_dualher.config import RunConfig
 from maniskill_dualher.experiment import backends, sweep
 from maniskill_dualher.sweep import main as run_sweep, train_runs as entry_train_runs  # noqa: F401
@@ -28,10 +28,16 @@ CHAIN = ["--preset", "smoke", "--experiments", "transfer", "--methods", "sac_her
          "--source-steps", "300"]
 
 
-def _env():
+def _env(hold=None):
+    """The sweep's environment; ``hold`` (a file): its runs of stage >= 1 wait after each checkpoint for as
+    long as the file exists (``faults.hold_point``), so a test disturbs a run in flight without racing it."""
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(REPO), env.get("PYTHONPATH")]))
     env.setdefault("OMP_NUM_THREADS", "1")
+    env.pop(faults.HOLD_AT, None)
+    env.pop(faults.HOLD_WHILE, None)
+    if hold is not None:
+        env[faults.HOLD_AT], env[faults.HOLD_WHILE] = "checkpoint:*/stage[1-9]*", str(hold)
     return env
 
 
@@ -40,8 +46,8 @@ def _sweep_cli(*args, timeout=300):
                           capture_output=True, text=True, timeout=timeout)
 
 
-def _popen_sweep(log: Path, *args):
-    return subprocess.Popen([sys.executable, "-m", "maniskill_dualher.sweep", *args], cwd=REPO, env=_env(),
+def _popen_sweep(log: Path, *args, hold=None):
+    return subprocess.Popen([sys.executable, "-m", "maniskill_dualher.sweep", *args], cwd=REPO, env=_env(hold),
                             stdout=open(log, "w"), stderr=subprocess.STDOUT, start_new_session=True)
 
 
@@ -49,15 +55,12 @@ def _tables(out: Path) -> dict:
     return {name: (out / name).read_bytes() for name in TABLES}
 
 
-def _stage_in_flight(out: Path, min_stage: int = 1, started: bool = False):
-    """A chain stage >= min_stage with a checkpoint and a progress file but not finished, or None. ``started``:
-    any stage that has started (its provenance written) and not finished, checkpoint or not: the widest window
-    (a smoke stage lasts ~1 s on a fast CPU, less than removing a Ray node takes)."""
-    name = rundir.PROVENANCE if started else "checkpoint.pt"
-    for f in sorted(out.glob(f"runs/chain/*/stage*/{name}")):
+def _stage_in_flight(out: Path, min_stage: int = 1):
+    """A chain stage >= min_stage with a checkpoint and a progress file but not finished, or None."""
+    for f in sorted(out.glob("runs/chain/*/stage*/checkpoint.pt")):
         d = f.parent
         if int(d.name[len("stage"):].split("-")[0]) >= min_stage and not rundir.is_done(d) \
-                and (started or backends.read_progress(d)):
+                and backends.read_progress(d):
             return d
     return None
 
@@ -89,7 +92,9 @@ def reference(tmp_path_factory):
 def test_local_pool_worker_sigkilled_midrun_is_retried_from_checkpoint(reference, tmp_path):
     out = tmp_path / "lost"
     log = tmp_path / "sweep.log"
-    p = _popen_sweep(log, *CHAIN, "--out", str(out), "--workers", "1", "--retries", "1")
+    hold = tmp_path / "hold"
+    hold.touch()
+    p = _popen_sweep(log, *CHAIN, "--out", str(out), "--workers", "1", "--retries", "1", hold=hold)
     try:
         deadline, victim = time.time() + 240, None
         while time.time() < deadline and p.poll() is None and victim is None:
@@ -98,7 +103,8 @@ def test_local_pool_worker_sigkilled_midrun_is_retried_from_checkpoint(reference
         assert victim is not None, "no stage was in flight: " + log.read_text()[-2000:]
         pid = backends.read_progress(victim)["pid"]
         assert pid != p.pid
-        os.kill(pid, signal.SIGKILL)
+        os.kill(pid, signal.SIGKILL)                     # held after its checkpoint: killed mid-run, every time
+        hold.unlink()
         p.wait(timeout=240)
     finally:
         _kill_group(p)
@@ -147,11 +153,17 @@ def test_lost_worker_bound_and_failure_points_to_traceback(tmp_path, capsys):
     assert f"ValueError: bad; traceback: {tmp_path / 'runs/single/b/error.txt'}" in out
 
 
-def test_ray_cluster_node_removed_midrun_sweep_finishes_same_tables(reference, tmp_path):
+def test_ray_cluster_node_removed_midrun_sweep_finishes_same_tables(reference, tmp_path, monkeypatch):
     """Two Ray nodes on this machine (the head schedules nothing); the node running stage >= 1 is removed
-    mid-run and a fresh one joins: Ray reruns the task, which resumes from the checkpoint."""
+    while that stage waits after a checkpoint, and a fresh one joins: Ray reruns the task, which resumes from
+    the checkpoint."""
     pytest.importorskip("ray")
     from ray.cluster_utils import Cluster
+    hold = tmp_path / "hold"
+    hold.touch()
+    for k, v in _env(hold).items():        # Ray's workers inherit their node's environment, not the sweep's
+        if k.startswith("MANISKILL_DUALHER_"):
+            monkeypatch.setenv(k, v)
     cluster = Cluster(initialize_head=True, connect=False,
                       head_node_args={"num_cpus": 0, "object_store_memory": 80 * 2**20, "include_dashboard": False})
     p = None
@@ -163,16 +175,17 @@ def test_ray_cluster_node_removed_midrun_sweep_finishes_same_tables(reference, t
         p = _popen_sweep(log, *CHAIN, "--out", str(out), "--backend", "ray", "--ray-address", cluster.address)
         deadline, victim = time.time() + 300, None
         while time.time() < deadline and p.poll() is None and victim is None:
-            victim = _stage_in_flight(out, started=True)
+            victim = _stage_in_flight(out)
             time.sleep(0.01)
         assert victim is not None, "no stage was in flight: " + log.read_text()[-2000:]
         cluster.remove_node(node, allow_graceful=False)
+        hold.unlink()
         cluster.add_node(num_cpus=1, object_store_memory=80 * 2**20)
         p.wait(timeout=300)
         print(f"ray cluster sweep with a node lost: {time.perf_counter() - t0:.1f} s")
         text = log.read_text()
         assert p.returncode == 0, text[-3000:]
-        assert _starts(victim) >= 2 and "running again, now pid" in text   # Ray retried it, silently but for this
+        assert _starts(victim) == 2 and "running again, now pid" in text   # Ray retried it, silently but for this
         assert _tables(out) == _tables(reference)
     finally:
         if p is not None:
@@ -184,13 +197,14 @@ def test_ray_cluster_node_removed_midrun_sweep_finishes_same_tables(reference, t
 def test_busy_folder_refused_then_free_after_sigkill(reference, tmp_path):
     out = tmp_path / "busy"
     log = tmp_path / "first.log"
-    first = _popen_sweep(log, *CHAIN, "--out", str(out), "--workers", "1")
+    hold = tmp_path / "hold"
+    hold.touch()                                        # the first sweep waits in stage 1 until it is killed
+    first = _popen_sweep(log, *CHAIN, "--out", str(out), "--workers", "1", hold=hold)
     try:
         deadline = time.time() + 120
-        while time.time() < deadline and first.poll() is None:
-            if (out / LOCK_FILE).is_file() and (out / LOCK_FILE).read_text().strip():
-                break
+        while time.time() < deadline and first.poll() is None and _stage_in_flight(out) is None:
             time.sleep(0.05)
+        assert (out / LOCK_FILE).is_file() and (out / LOCK_FILE).read_text().strip()
         assert first.poll() is None, log.read_text()[-2000:]
         second = _sweep_cli(*CHAIN, "--out", str(out))
         assert second.returncode == 2
@@ -371,3 +385,23 @@ def test_freeze_imports_freezes_the_heap_once_per_process():
             "print('ok', n)\n")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert r.returncode == 0 and r.stdout.startswith("ok"), r.stderr[-2000:]
+
+
+def test_hold_point_waits_while_its_file_exists_and_only_where_its_pattern_matches(tmp_path, monkeypatch):
+    import threading
+    hold = tmp_path / "hold"
+    hold.touch()
+    monkeypatch.setenv(faults.HOLD_AT, "checkpoint:*/stage[1-9]*")
+    monkeypatch.setenv(faults.HOLD_WHILE, str(hold))
+    t0 = time.perf_counter()
+    faults.hold_point("checkpoint:out/runs/chain/x/stage0-ReachTarget-v1")      # no match: goes on at once
+    assert time.perf_counter() - t0 < 0.5
+    threading.Timer(0.3, hold.unlink).start()
+    t0 = time.perf_counter()
+    faults.hold_point("checkpoint:out/runs/chain/x/stage1-CloseBox-v1")
+    assert 0.25 < time.perf_counter() - t0 < 5
+    monkeypatch.delenv(faults.HOLD_AT)
+    hold.touch()
+    t0 = time.perf_counter()
+    faults.hold_point("checkpoint:out/runs/chain/x/stage1-CloseBox-v1")         # no pattern: never holds
+    assert time.perf_counter() - t0 < 0.5
