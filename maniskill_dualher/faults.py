@@ -31,3 +31,8 @@ def hold_point(name: str, poll_s: float = 0.02) -> None:
         return
     while os.path.exists(path):
         time.sleep(poll_s)
+
+
+def hold_env(pattern: str, path) -> dict:
+    """The environment variables that hold a process at the points matching ``pattern`` while ``path`` exists."""
+    return {HOLD_AT: pattern, HOLD_WHILE: str(path)}

@@ -37,7 +37,7 @@ def _env(hold=None):
     env.pop(faults.HOLD_AT, None)
     env.pop(faults.HOLD_WHILE, None)
     if hold is not None:
-        env[faults.HOLD_AT], env[faults.HOLD_WHILE] = "checkpoint:*/stage[1-9]*", str(hold)
+        env.update(faults.hold_env("checkpoint:*/stage[1-9]*", hold))
     return env
 
 

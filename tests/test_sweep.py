@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from maniskill_dualher import rundir
+from maniskill_dualher import faults, rundir
 from maniskill_dualher.config import TASKS, ReplayConfig, RunConfig, SACConfig
 from maniskill_dualher.experiment import protocol, sweep
 from maniskill_dualher.sweep import main as run_sweep, train_runs as entry_train_runs  # noqa: F401
@@ -34,10 +34,15 @@ METRIC_KEYS = {"successful_train_episodes": "train_successes", "final_eval_succe
 CURVE_KEYS = {"mean_eval_success_rate": "eval_success_rate", "mean_eval_return": "eval_return"}
 
 
-def _env():
+def _env(hold=None):
+    """``hold`` (a file): every run waits after each checkpoint while it exists (``faults.hold_point``)."""
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(REPO), env.get("PYTHONPATH")]))
     env.setdefault("OMP_NUM_THREADS", "1")
+    env.pop(faults.HOLD_AT, None)
+    env.pop(faults.HOLD_WHILE, None)
+    if hold is not None:
+        env.update(faults.hold_env("checkpoint:*", hold))
     return env
 
 
@@ -232,7 +237,9 @@ def test_sigkill_midway_then_resume_gives_identical_tables(smoke_local, tmp_path
     out = tmp_path / "killed"
     args = [*SUBGRID, "--out", str(out)]
     log = open(tmp_path / "first.log", "w")
-    p = subprocess.Popen([sys.executable, "-m", "maniskill_dualher.sweep", *args], cwd=REPO, env=_env(),
+    hold = tmp_path / "hold"
+    hold.touch()                     # runs wait after their first checkpoint: the kill lands mid-way every time
+    p = subprocess.Popen([sys.executable, "-m", "maniskill_dualher.sweep", *args], cwd=REPO, env=_env(hold),
                          stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
     try:
         deadline = time.time() + 300
@@ -250,6 +257,7 @@ def test_sigkill_midway_then_resume_gives_identical_tables(smoke_local, tmp_path
         while any(_alive(w) for w in workers) and time.time() < t_end:
             time.sleep(0.1)
         assert not [w for w in workers if _alive(w)], "pool workers outlived the killed sweep"
+        hold.unlink()
     finally:
         try:
             os.killpg(p.pid, signal.SIGKILL)
