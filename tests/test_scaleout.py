@@ -20,6 +20,7 @@ from maniskill_dualher.experiment import backends, sweep
 from maniskill_dualher.sweep import main as run_sweep, train_runs as entry_train_runs  # noqa: F401
 from maniskill_dualher.experiment.grid import Node
 from maniskill_dualher.experiment.lock import LOCK_FILE, FolderLock
+from subprocs import sweep_env
 
 REPO = Path(__file__).resolve().parents[1]
 TABLES = ["claims.csv", "table5_multitask.csv", "scores.csv"]
@@ -29,16 +30,7 @@ CHAIN = ["--preset", "smoke", "--experiments", "transfer", "--methods", "sac_her
 
 
 def _env(hold=None):
-    """The sweep's environment; ``hold`` (a file): its runs of stage >= 1 wait after each checkpoint for as
-    long as the file exists (``faults.hold_point``), so a test disturbs a run in flight without racing it."""
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(REPO), env.get("PYTHONPATH")]))
-    env.setdefault("OMP_NUM_THREADS", "1")
-    env.pop(faults.HOLD_AT, None)
-    env.pop(faults.HOLD_WHILE, None)
-    if hold is not None:
-        env.update(faults.hold_env("checkpoint:*/stage[1-9]*", hold))
-    return env
+    return sweep_env(hold, "checkpoint:*/stage[1-9]*")    # a chain's stages after the first
 
 
 def _sweep_cli(*args, timeout=300):

@@ -17,13 +17,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from maniskill_dualher import faults, rundir
+from maniskill_dualher import rundir
 from maniskill_dualher.config import TASKS, ReplayConfig, RunConfig, SACConfig
 from maniskill_dualher.experiment import protocol, sweep
 from maniskill_dualher.sweep import main as run_sweep, train_runs as entry_train_runs  # noqa: F401
 from maniskill_dualher.experiment.backends import run_grid
 from maniskill_dualher.experiment.grid import build_grid, seed_span
 from maniskill_dualher.train import train_chain
+from subprocs import sweep_env
 
 REPO = Path(__file__).resolve().parents[1]
 TABLES = ["table4_sampling_ratio.csv", "table5_multitask.csv", "single_task.csv", "ablations.csv"]
@@ -35,15 +36,7 @@ CURVE_KEYS = {"mean_eval_success_rate": "eval_success_rate", "mean_eval_return":
 
 
 def _env(hold=None):
-    """``hold`` (a file): every run waits after each checkpoint while it exists (``faults.hold_point``)."""
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(REPO), env.get("PYTHONPATH")]))
-    env.setdefault("OMP_NUM_THREADS", "1")
-    env.pop(faults.HOLD_AT, None)
-    env.pop(faults.HOLD_WHILE, None)
-    if hold is not None:
-        env.update(faults.hold_env("checkpoint:*", hold))
-    return env
+    return sweep_env(hold)
 
 
 def _cli(*args, timeout=600, **kw):

@@ -1,0 +1,21 @@
+"""The environment of a sweep or run started in another process by a test: this checkout first on the path,
+one thread, and optionally held after checkpoints (``faults.hold_point``) so a test disturbs a run in
+flight at a moment it chooses instead of racing it."""
+import os
+from pathlib import Path
+
+from maniskill_dualher import faults
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def sweep_env(hold=None, pattern: str = "checkpoint:*") -> dict:
+    """``hold`` (a file): the runs whose checkpoint point matches ``pattern`` wait while the file exists."""
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(REPO), env.get("PYTHONPATH")]))
+    env.setdefault("OMP_NUM_THREADS", "1")
+    env.pop(faults.HOLD_AT, None)
+    env.pop(faults.HOLD_WHILE, None)
+    if hold is not None:
+        env.update(faults.hold_env(pattern, hold))
+    return env
