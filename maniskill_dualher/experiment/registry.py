@@ -138,6 +138,16 @@ E_CRITIC = "E's batches train the critics only"
 E_OFF_MATCHED = "E off, 1/0.6 updates per env step"
 X4 = "4× adaptation budget"
 
+# Arms run both after transfer (e_mechanism) and from scratch (mechanism): one definition each.
+R_STARVED_ARM = Arm("r_starved", ("adapt.replay.ratio=1/0", "adapt.sac.updates_per_step=0.6"),
+                    doc="E off at 0.6 updates per env step: R's share of the paper arm's updates, no E batches",
+                    display=R_STARVED)
+E_CRITIC_ARM = Arm("e_critic", ("adapt.replay.e_batches=critic",),
+                   doc="E's batches train the critics only: no actor or alpha step on them", display=E_CRITIC)
+E_OFF_MATCHED_ARM = Arm("e_off_matched", ("adapt.replay.ratio=1/0", "adapt.sac.updates_per_step=1/0.6"),
+                        doc="E off at 1/0.6 updates per env step: r_matched's update count, every update from R",
+                        display=E_OFF_MATCHED)
+
 
 def _ratio_arm(r: str) -> Arm:
     return Arm(r, (f"adapt.replay.ratio={r}",), doc=f"adaptation stage samples R/E at {r}", display=r)
@@ -185,14 +195,9 @@ EXPERIMENTS: Dict[str, Experiment] = {e.name: e for e in (
             display="E's 40% inside every batch"),
         Arm("r_matched", ("adapt.sac.updates_per_step=1/0.6",),
             doc="1/0.6 updates per env step: as many updates from R as SAC+HER+PER", display=R_MATCHED),
-        Arm("r_starved", ("adapt.replay.ratio=1/0", "adapt.sac.updates_per_step=0.6"),
-            doc="E off at 0.6 updates per env step: R's share of the paper arm's updates, no E batches",
-            display=R_STARVED),
-        Arm("e_critic", ("adapt.replay.e_batches=critic",),
-            doc="E's batches train the critics only: no actor or alpha step on them", display=E_CRITIC),
-        Arm("e_off_matched", ("adapt.replay.ratio=1/0", "adapt.sac.updates_per_step=1/0.6"),
-            doc="E off at 1/0.6 updates per env step: r_matched's update count, every update from R",
-            display=E_OFF_MATCHED),
+        R_STARVED_ARM,
+        E_CRITIC_ARM,
+        E_OFF_MATCHED_ARM,
     )),
     # The same contrasts with no prior at all: the last task from scratch (adaptation budget and settings).
     Experiment("mechanism", "Where E's cost comes from, without transfer: R's lost updates vs E's own batches",
@@ -205,14 +210,9 @@ EXPERIMENTS: Dict[str, Experiment] = {e.name: e for e in (
             display=E_OFF),
         Arm("r_matched", ("adapt.sac.updates_per_step=1/0.6",),
             doc="1/0.6 updates per env step: R gets SAC+HER+PER's updates, E's batches on top", display=R_MATCHED),
-        Arm("r_starved", ("adapt.replay.ratio=1/0", "adapt.sac.updates_per_step=0.6"),
-            doc="E off at 0.6 updates per env step: R's share of the paper arm's updates, no E batches",
-            display=R_STARVED),
-        Arm("e_critic", ("adapt.replay.e_batches=critic",),
-            doc="E's batches train the critics only: no actor or alpha step on them", display=E_CRITIC),
-        Arm("e_off_matched", ("adapt.replay.ratio=1/0", "adapt.sac.updates_per_step=1/0.6"),
-            doc="E off at 1/0.6 updates per env step: r_matched's update count, every update from R",
-            display=E_OFF_MATCHED),
+        R_STARVED_ARM,
+        E_CRITIC_ARM,
+        E_OFF_MATCHED_ARM,
     )),
     Experiment("matched_chain", "R's updates matched in every stage: does the dual buffer's prior catch up?",
                "chain", methods=("dual_buffer",),
