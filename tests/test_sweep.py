@@ -35,12 +35,8 @@ METRIC_KEYS = {"successful_train_episodes": "train_successes", "final_eval_succe
 CURVE_KEYS = {"mean_eval_success_rate": "eval_success_rate", "mean_eval_return": "eval_return"}
 
 
-def _env(hold=None):
-    return sweep_env(hold)
-
-
 def _cli(*args, timeout=600, **kw):
-    return subprocess.run([sys.executable, "-m", "maniskill_dualher.sweep", *args], cwd=REPO, env=_env(),
+    return subprocess.run([sys.executable, "-m", "maniskill_dualher.sweep", *args], cwd=REPO, env=sweep_env(),
                           capture_output=True, text=True, timeout=timeout, **kw)
 
 
@@ -232,7 +228,7 @@ def test_sigkill_midway_then_resume_gives_identical_tables(smoke_local, tmp_path
     log = open(tmp_path / "first.log", "w")
     hold = tmp_path / "hold"
     hold.touch()                     # runs wait after their first checkpoint: the kill lands mid-way every time
-    p = subprocess.Popen([sys.executable, "-m", "maniskill_dualher.sweep", *args], cwd=REPO, env=_env(hold),
+    p = subprocess.Popen([sys.executable, "-m", "maniskill_dualher.sweep", *args], cwd=REPO, env=sweep_env(hold),
                          stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
     try:
         deadline = time.time() + 300
@@ -302,7 +298,7 @@ class _RayHead:
         return f"127.0.0.1:{self.port}"
 
     def start(self) -> None:
-        env = {k: v for k, v in _env().items() if k != "RAY_ADDRESS"}
+        env = {k: v for k, v in sweep_env().items() if k != "RAY_ADDRESS"}
         p = subprocess.Popen([sys.executable, "-c", "import sys; from ray.scripts.scripts import main; sys.exit(main())",
                               "start", "--head", "--num-cpus", "2", "--port", str(self.port), "--temp-dir", self.tmp,
                               "--include-dashboard=false", "--disable-usage-stats", "--object-store-memory", "80000000",
@@ -354,7 +350,7 @@ def test_a_sweep_whose_ray_head_is_lost_resumes_to_the_same_tables(tmp_path):
     driver = None
     try:
         head.start()
-        driver = subprocess.Popen([sys.executable, "-m", "maniskill_dualher.sweep", *args], cwd=REPO, env=_env(),
+        driver = subprocess.Popen([sys.executable, "-m", "maniskill_dualher.sweep", *args], cwd=REPO, env=sweep_env(),
                                   stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
         deadline = time.time() + 400
         while time.time() < deadline and driver.poll() is None:
@@ -686,7 +682,7 @@ def test_a_sweep_in_which_no_run_finishes_ends_with_one_line_exit_1(tmp_path):
     assert not (out / "summary.md").exists() and not (out / "scores.csv").exists()
     for rel in rels:
         (out / rel / rundir.PROVENANCE).rmdir()
-    r = subprocess.run([sys.executable, *shlex.split(again)[1:]], cwd=REPO, env=_env(), capture_output=True,
+    r = subprocess.run([sys.executable, *shlex.split(again)[1:]], cwd=REPO, env=sweep_env(), capture_output=True,
                        text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-3000:]
     assert all(rundir.is_done(out / rel) for rel in rels) and (out / "summary.md").is_file()
@@ -717,7 +713,7 @@ def test_readme_first_command_on_a_fresh_copy_writes_outside_the_reference(tmp_p
     argv = first.split("#")[0].split()[3:]
     assert argv == ["--experiments", "single", "--tasks", "ReachTarget-v1", "--seeds", "3", "--out", "runs/first"]
     before = {p: p.read_bytes() for p in (repo / "results").rglob("*") if p.is_file()}
-    env = _env()
+    env = sweep_env()
     env["PYTHONPATH"] = str(repo)
     r = subprocess.run([sys.executable, "-m", "maniskill_dualher.sweep", *argv, "--source-steps", "60",
                         "--set", "eval_every=30", "--set", "eval_episodes=1", "--set", "sac.random_steps=20",
