@@ -272,6 +272,13 @@ EXPERIMENTS: Dict[str, Experiment] = {e.name: e for e in (
             prior_method="sac_her_per",
             doc="one update per env step (the confirmatory study's second schedule; ~3.6M updates a run)",
             display="Table 3's settings, one update per env step"),
+        # the count uniform-random actions give under the same episode rules, budget and prior (its R is carried
+        # and filled as in the other arms; no update is ever made, so the prior's actor is only evaluated)
+        Arm("random", PAPER_REGIME_SETTINGS + ("adapt.sac.random_steps=3600000", "adapt.sac.learning_starts=3600000"),
+            methods=("sac_her_per",), prior_method="sac_her_per",
+            doc="uniform-random actions for all 3.6M env steps, no updates: the count chance gives (the baseline "
+                "beside every count of this experiment)",
+            display="uniform-random actions, no updates"),
     )),
     Experiment("regime", "A longer adaptation (4x), with updates per env step or per episode", "chain",
                methods="transfer", doc="do scarce updates decide the sign?", arms=(
