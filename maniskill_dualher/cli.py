@@ -130,12 +130,40 @@ def train_config(args: argparse.Namespace) -> RunConfig:
     return cfg
 
 
+def continue_request(args: argparse.Namespace):
+    """``--continue RUN --total-steps N`` -> (RUN, N); None without --continue. The run keeps its own config,
+    so no other setting goes with it; without --continue, --out is needed."""
+    from .experiment import overrides
+    if args.continue_run is None:
+        if not args.out:
+            raise ConfigError("--out is required (or --continue RUN --total-steps N)")
+        return None
+    others = [flag_of(key.split(".", 1)[1]) for key, v in sorted(vars(args).items())
+              if "." in key and v is not None and key != "run.total_steps"]
+    others += [f"--{k.replace('_', '-')}" for k in ("out", "config", "preset", "set", "init_from", "carry_replay",
+                                                    "keep_replay") if getattr(args, k)]
+    if others:
+        raise ConfigError(f"--continue {args.continue_run} takes the run's own config: only --total-steps goes "
+                          f"with it, not {others[0]}")
+    raw = vars(args)["run.total_steps"]
+    if raw is None:
+        raise ConfigError(f"--continue {args.continue_run} needs --total-steps N (more than the run has done)")
+    try:
+        return args.continue_run, overrides.coerce("total_steps", raw)
+    except ConfigError:
+        raise ConfigError(f"--total-steps: bad value {raw!r}") from None
+
+
 def train_parser() -> argparse.ArgumentParser:
     p = OneLineParser(
         prog="python -m maniskill_dualher.train",
         description="Train one SAC run (sac | sac_her_per | dual_buffer) on a ManiSkill task or any gymnasium "
                     "env with a Box action space. Running again on the same --out resumes.")
-    p.add_argument("--out", required=True, help="run folder (created; resumed if it holds a checkpoint)")
+    p.add_argument("--out", help="run folder (created; resumed if it holds a checkpoint)")
+    p.add_argument("--continue", dest="continue_run", metavar="RUN",
+                   help="carry the finished run in folder RUN on to --total-steps N (more than it has done), from "
+                        "its final checkpoint, with its own config (it needs its replay: trained with "
+                        "--keep-replay)")
     p.add_argument("--config", help="JSON file with a RunConfig (flags override it)")
     from .experiment.presets import PRESETS  # issue 31: --preset lists its choices
     p.add_argument("--preset", choices=list(PRESETS),

@@ -4,17 +4,19 @@ A run folder (written by ``train.py``; a transfer stage also by ``experiment/pro
 
     config.json     the RunConfig (a different config in the same folder is refused)
     metrics.csv     one row per evaluation (METRIC_COLUMNS first)
-    checkpoint.pt   networks, optimizer, replay (until finished, or kept for a successor stage), RNG
+    checkpoint.pt   networks, optimizer, replay (until finished, or kept for a successor stage or a later
+                    ``train --continue``), RNG
     checkpoint.prev.pt  the checkpoint before it, while the run is unfinished: an unreadable latest one
                     (a kill mid-write on a filesystem without atomic rename, a bad disk) falls back to it
     lineage.json    where its networks (and replay) came from, if transferred
     stage.json      its place in a transfer chain (index, parent folder, carry flag)
     cell.json       written by the sweep: the cells it serves (experiment, arm, task, chain, method, variant,
                     seed, stage, role, parent); the report groups by these and infers nothing
-    done.json       the final metrics row, once finished
+    done.json       the final metrics row, once finished (``train --continue`` removes it and carries the run on)
     policy.pt       the actor at the latest evaluation (policy.py: load_policy; evaluate.py)
     policy_best.pt  the actor at the best evaluation success so far (a tie keeps the earlier)
-    provenance.json where and with what code it ran: {"starts": [one provenance() per process start]}
+    provenance.json where and with what code it ran: {"starts": [one provenance() per process start]}; a start
+                    that carried a finished run on to a larger budget names the budget it had ("continued_from")
     error.txt       the traceback of the last failed attempt (a later resume may still finish it)
     progress.json   env steps done, written by a sweep's worker every few seconds (the sweep's bar reads it)
     events.out.*    TensorBoard
@@ -270,28 +272,46 @@ class RunFolder:
     def __init__(self, path: PathLike):
         self.path = Path(path)
 
-    def check_identity(self, config_json: str) -> None:
-        """Refuse a folder that holds a run of another config (ConfigError naming the keys that differ)."""
-        from .config import ConfigError, run_identity
+    def config(self) -> Optional[dict]:
+        """config.json's dict (None: no run here)."""
+        from .config import ConfigError
         cfg_path = self.path / CONFIG
         if not cfg_path.is_file():
-            return
+            return None
         try:
-            old = json.loads(cfg_path.read_text())
+            return json.loads(cfg_path.read_text())
         except json.JSONDecodeError:
             raise ConfigError(f"{cfg_path} is not valid JSON") from None
+
+    def check_identity(self, config_json: str, ignore: Sequence[str] = ()) -> None:
+        """Refuse a folder that holds a run of another config (ConfigError naming the keys that differ); the
+        top-level keys in ``ignore`` may differ (``train --continue``: total_steps)."""
+        from .config import ConfigError, run_identity
+        old = self.config()
+        if old is None:
+            return
         old, new = run_identity(old), run_identity(json.loads(config_json))
+        for k in ignore:
+            old.pop(k, None)
+            new.pop(k, None)
         if old != new:
             keys = ", ".join(differing_keys(old, new)) or "?"
             raise ConfigError(f"{self.path} holds a run of a different config (differs in: {keys}); use another --out")
 
-    def record_start(self, config_json: str, init_from: Optional[PathLike], carry_replay: bool) -> None:
-        """config.json, lineage.json and a provenance.json entry for this process start."""
+    def record_start(self, config_json: str, init_from: Optional[PathLike], carry_replay: bool,
+                     continued_from: Optional[int] = None) -> None:
+        """config.json, lineage.json and a provenance.json entry for this process start. ``continued_from``: the
+        budget of the finished run this start carries on (its lineage stays: its networks came from there)."""
         self.path.mkdir(parents=True, exist_ok=True)
         atomic_write_text(self.path / CONFIG, config_json + "\n")
-        write_json(self.path / ORIGIN, {"init_from": str(init_from) if init_from else None,
-                                       "carry_replay": bool(carry_replay)})
-        record_start(self.path)
+        info = None
+        if continued_from is None:
+            write_json(self.path / ORIGIN, {"init_from": str(init_from) if init_from else None,
+                                           "carry_replay": bool(carry_replay)})
+        else:
+            from .provenance import provenance
+            info = dict(provenance(), continued_from={"total_steps": int(continued_from)})
+        record_start(self.path, info)
 
     @property
     def has_checkpoint(self) -> bool:
@@ -334,6 +354,10 @@ class RunFolder:
 
     def finish(self, final: dict, **extra) -> None:
         write_done(self.path, final, **extra)
+
+    def reopen(self) -> None:
+        """A finished run goes on (``train --continue``): done.json removed."""
+        (self.path / DONE).unlink()
 
     def write_error(self) -> None:
         """error.txt: UTC time and the traceback of the exception being handled."""

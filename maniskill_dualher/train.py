@@ -14,8 +14,9 @@ metrics and weights do not depend on which runs share its process (``tests/test_
 A run folder is the unit of truth: ``config.json``, ``metrics.csv`` (one row per evaluation),
 TensorBoard events (``losses/*`` every ``log_every`` updates, ``charts/*`` and ``replay/*``),
 ``checkpoint.pt`` (and ``checkpoint.prev.pt`` while unfinished) and, once finished, ``done.json``
-(``rundir.RunFolder`` keeps them). Running again on the same folder resumes from the checkpoint; because
-every training episode is reset with its own seed and checkpoints are taken between episodes together with
+(``rundir.RunFolder`` keeps them). Running again on the same folder resumes from the checkpoint (a finished
+run answers with its result; ``--continue RUN --total-steps N`` carries it on to N env steps, ``continued``);
+because every training episode is reset with its own seed and checkpoints are taken between episodes together with
 all random-number state and the counters (``counters.Counters``), a resumed run produces the same metrics
 as an uninterrupted one (CPU simulation, one env).
 
@@ -45,7 +46,7 @@ from .faults import hold_point
 from .pack import Updater
 from .policy import save_policy
 from .replay.base import Episode
-from .rundir import POLICY, POLICY_BEST, RunFolder, array_state, load_checkpoint
+from .rundir import CELL, CONFIG, POLICY, POLICY_BEST, RunFolder, array_state, load_checkpoint
 from .sac import SAC
 
 DEMO_SEED_BASE = 2_000_000_000
@@ -108,6 +109,7 @@ class Job:
     init_from: Optional[str] = None
     carry_replay: bool = False
     keep_replay: bool = False
+    extend: bool = False  # a finished run carried on to cfg.total_steps (``continued``)
 
 
 @dataclasses.dataclass
@@ -247,8 +249,9 @@ def freeze_imports() -> None:
 def train_runs(jobs: Sequence[Job], stop_at: Optional[int] = None, progress: Optional[Progress] = None,
                show_progress: bool = False) -> List[dict]:
     """Train (or resume, or return the result of) every job in this process: each job's run opened, then
-    ``drive``. -> per job as ``drive``; a refused config (ConfigError before the run exists) writes nothing
-    into a folder that may hold another run. A kill or interrupt leaves every run's last checkpoint standing."""
+    ``drive``. -> per job as ``drive``; a refused config (ConfigError before the run exists; a finished run's
+    folder refuses another config too) writes nothing into a folder that may hold another run. A kill or
+    interrupt leaves every run's last checkpoint standing."""
     freeze_imports()
     results: List[Optional[dict]] = [None] * len(jobs)
     runs: List[Trainer] = []
@@ -256,12 +259,17 @@ def train_runs(jobs: Sequence[Job], stop_at: Optional[int] = None, progress: Opt
     try:
         for k, job in enumerate(jobs):
             folder = RunFolder(job.out)
-            if folder.done:
-                results[k] = {"row": folder.final()}
+            if folder.done and not job.extend:
+                try:  # a finished run of another config is refused as an unfinished one is
+                    folder.check_identity(job.cfg.to_json())
+                    results[k] = {"row": folder.final()}
+                except ConfigError as e:
+                    results[k] = {"error": e}
                 continue
             try:
                 runs.append(Trainer(job.cfg, job.out, init_from=job.init_from, carry_replay=job.carry_replay,
-                                    keep_replay=job.keep_replay, progress=progress, show_progress=show_progress))
+                                    keep_replay=job.keep_replay, progress=progress, show_progress=show_progress,
+                                    extend=job.extend))
             except Exception as e:
                 if not isinstance(e, ConfigError):
                     folder.write_error()
@@ -281,10 +289,43 @@ def run_training(cfg: RunConfig, out_dir, init_from=None, carry_replay: bool = F
     """One run: ``train_runs`` of one job. Returns its final metrics row (None if ``stop_at`` paused it);
     raises what stopped it."""
     job = Job(cfg, str(out_dir), None if init_from is None else str(init_from), carry_replay, keep_replay)
+    return run_job(job, stop_at=stop_at, progress=progress, show_progress=show_progress)
+
+
+def run_job(job: Job, show_progress: bool = True, stop_at: Optional[int] = None,
+            progress: Optional[Progress] = None) -> Optional[dict]:
+    """``run_training`` of a ``Job`` (``continued``'s)."""
     res = train_runs([job], stop_at=stop_at, progress=progress, show_progress=show_progress)[0]
     if "error" in res:
         raise res["error"]
     return res["row"]
+
+
+def continued(run_dir, total_steps: int) -> Job:
+    """``train --continue RUN --total-steps N``: the finished run in ``run_dir`` carried on from its final
+    checkpoint (networks, optimizer, replay, counters, random streams) to N env steps, as one run whose
+    config.json then says N. It equals a run planned at N from the start where the old budget ended between
+    episodes at an evaluation (fixed-length episodes of a length dividing it; ``eval_every`` dividing it) and
+    nothing read the budget before: PER's importance-sampling exponent is annealed over ``total_steps``
+    (``set_progress``), so with ``replay.is_weights`` on (off by default) the old steps' weights differ; on a
+    task with contact (CloseBox, CloseMicrowave) the fresh env's PhysX state differs by rounding, as after any
+    resume. Bad input is a ConfigError naming it, before anything is written."""
+    folder = RunFolder(run_dir)
+    old = folder.config()
+    if old is None or not folder.done:
+        raise ConfigError(f"--continue {run_dir}: " + ("no run there" if old is None else
+                          f"its run has not finished; resume it with --config {folder.path / CONFIG} "
+                          f"--out {run_dir}"))
+    if (folder.path / CELL).is_file():  # the sweep's report would mix budgets in its cell
+        raise ConfigError(f"--continue {run_dir}: a sweep's run (cell.json), whose budget is the sweep's; "
+                          "continue a copy of it without cell.json")
+    cfg = RunConfig.from_dict(old)
+    if total_steps <= cfg.total_steps:
+        raise ConfigError(f"--total-steps {total_steps}: not more than the {cfg.total_steps} env steps "
+                          f"{run_dir} has done")
+    cfg.total_steps = int(total_steps)
+    # it keeps its replay again, to be continued again (as it was kept for this)
+    return Job(cfg, str(folder.path), keep_replay=True, extend=True)
 
 
 def train_chain(stages: List[RunConfig], out_dir, carry_replay: bool = True,
@@ -310,7 +351,8 @@ class Trainer:
     finish; sets ``state`` and ``final_row``, the run's outcome); ``close``."""
 
     def __init__(self, cfg: RunConfig, out_dir, init_from=None, carry_replay: bool = False,
-                 show_progress: bool = True, keep_replay: bool = False, progress: Optional[Progress] = None):
+                 show_progress: bool = True, keep_replay: bool = False, progress: Optional[Progress] = None,
+                 extend: bool = False):
         from .methods import make_method  # late: methods import replay pieces
 
         self.cfg = cfg.validate()
@@ -319,8 +361,14 @@ class Trainer:
         self.show_progress = show_progress
         self.progress = progress
         self.keep_replay = keep_replay  # a finished run keeps its replay only if a later stage reads it
-        self.folder.check_identity(cfg.to_json())
+        self.folder.check_identity(cfg.to_json(), ignore=("total_steps",) if extend else ())
         init_state = load_checkpoint(Path(init_from)) if init_from is not None else None
+        state = None
+        if extend:  # a finished run carried on (``continued``): its final checkpoint, replay included
+            state = self.folder.load_checkpoint()
+            if state["method"] is None:
+                raise ConfigError(f"--continue {self.out}: its checkpoint holds no replay (it finished without "
+                                  "--keep-replay), so it cannot go on as the same run; train it with --keep-replay")
 
         torch.set_num_threads(cfg.torch_threads)
         # this run's torch random stream (network init, exploration, the update's draws): seeded as
@@ -346,12 +394,18 @@ class Trainer:
         self.state = "running"      # then "paused" (at stop_at) or "finished"
         self.final_row: Optional[dict] = None
         self.tb = self.bar = None
-        if self.folder.has_checkpoint:
-            self._restore(self.folder.load_checkpoint())
+        if state is not None or self.folder.has_checkpoint:
+            self._restore(state if state is not None else self.folder.load_checkpoint())
             self.resumed = True
         elif init_state is not None:
             self._init_from(init_state, carry_replay)
-        self.folder.record_start(cfg.to_json(), init_from, carry_replay)
+        continued_from = None
+        if extend:
+            continued_from = self.folder.config()["total_steps"]
+            # done.json goes before config.json changes: a kill between them leaves the old run, unfinished at
+            # its own budget, which its own command finishes again at once
+            self.folder.reopen()
+        self.folder.record_start(cfg.to_json(), init_from, carry_replay, continued_from)
 
     # counters by name, for callers that read a trainer (benches)
     env_steps = property(lambda self: self.count.env_steps)
@@ -526,7 +580,9 @@ class Trainer:
         from torch.utils.tensorboard import SummaryWriter
         from tqdm import tqdm
         cfg = self.cfg
-        self.tb = SummaryWriter(str(self.out), purge_step=self.count.env_steps if self.resumed else None)
+        # purged: what a killed process logged after the checkpoint, from the next env step on (the
+        # checkpoint's own evaluation, logged at its step, stays)
+        self.tb = SummaryWriter(str(self.out), purge_step=self.count.env_steps + 1 if self.resumed else None)
         if not self.resumed:
             self.tb.add_text("config", "```\n" + cfg.to_json() + "\n```", 0)
         self.bar = tqdm(total=cfg.total_steps, initial=self.count.env_steps, disable=not self.show_progress,
@@ -696,7 +752,8 @@ def _solver_action(solver, env: BatchEnv) -> np.ndarray:
 
 # --------------------------------------------------------------------------- python -m maniskill_dualher.train
 # (the flags and how they become a RunConfig live in cli.py)
-from .cli import NO_PRESET_NOTE, train_config as config_from_args, train_parser as build_parser  # noqa: E402
+from .cli import (NO_PRESET_NOTE, continue_request, train_config as config_from_args,  # noqa: E402
+                  train_parser as build_parser)
 
 
 def _say_once(line: str) -> Progress:
@@ -713,13 +770,22 @@ def _say_once(line: str) -> Progress:
 
 
 def main(argv=None) -> int:
-    """One run (or its resume); prints its final metrics row as JSON; bad input: one line, exit code 2."""
+    """One run (or its resume, or a finished run carried on with --continue); prints its final metrics row as
+    JSON (a run found finished: and one line on stderr saying so); bad input: one line, exit code 2."""
     args = build_parser().parse_args(argv)
     try:
-        cfg = config_from_args(args)
-        final = run_training(cfg, args.out, init_from=args.init_from, carry_replay=args.carry_replay,
-                             show_progress=not args.no_progress, keep_replay=args.keep_replay,
-                             progress=None if args.preset or args.config else _say_once(NO_PRESET_NOTE))
+        again = continue_request(args)
+        if again is not None:
+            final = run_job(continued(*again), show_progress=not args.no_progress)
+        else:
+            cfg = config_from_args(args)
+            was_done = RunFolder(args.out).done
+            final = run_training(cfg, args.out, init_from=args.init_from, carry_replay=args.carry_replay,
+                                 show_progress=not args.no_progress, keep_replay=args.keep_replay,
+                                 progress=None if args.preset or args.config else _say_once(NO_PRESET_NOTE))
+            if was_done:
+                print(f"{args.out} holds this run, finished at {final['env_steps']} env steps: its results are "
+                      f"in {Path(args.out) / 'metrics.csv'} and done.json", file=sys.stderr)
     except ConfigError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

@@ -398,3 +398,129 @@ def test_a_run_killed_mid_way_resumes_bit_identically(tmp_path):
     assert wa.keys() == wb.keys() and all(torch.equal(wa[k], wb[k]) for k in wa)
     starts = json.loads((tmp_path / "b" / "provenance.json").read_text())["starts"]
     assert len(starts) == 2                                        # two processes: the killed one, the resume
+
+
+# --------------------------------------------------------------------------- a finished run: refused, said, continued
+# ReachTarget: a hinged task's contacts make PhysX's CPU simulation differ by rounding after a resume's fresh env
+# (docs/ARCHITECTURE.md), so a resume or continuation there is not bit-identical; ReachTarget's is
+SMOKE = ("--preset", "smoke", "--task", "ReachTarget-v1", "--method", "dual_buffer", "--no-terminate-on-success",
+         "--no-progress")
+
+
+def train_cli(capsys, *args):
+    """train.main in process -> (exit code, stdout lines, stderr lines)."""
+    from maniskill_dualher.train import main as train_main
+    try:
+        rc = train_main(list(map(str, args)))
+    except SystemExit as e:
+        rc = e.code
+    out = capsys.readouterr()
+    return rc, out.out.strip().splitlines(), out.err.strip().splitlines()
+
+
+def listing(folder: Path) -> dict:
+    """Every file under ``folder`` with its size and mtime (nothing written: this stays the same)."""
+    return {str(p.relative_to(folder)): (p.stat().st_size, p.stat().st_mtime_ns)
+            for p in sorted(folder.rglob("*"))} if folder.exists() else {}
+
+
+@pytest.fixture(scope="module")
+def finished_2k(tmp_path_factory):
+    """A finished 2000-step smoke run on ReachTarget that kept its replay (--keep-replay); tests copy it
+    before changing it."""
+    from maniskill_dualher.train import main as train_main
+    out = tmp_path_factory.mktemp("finished") / "F"
+    assert train_main([*SMOKE, "--total-steps", "2000", "--keep-replay", "--out", str(out)]) == 0
+    return out
+
+
+def test_a_finished_run_of_another_config_is_refused_and_the_same_config_is_told(finished_2k, capsys):
+    """On a finished folder a different config is refused as on an unfinished one: one line naming the keys
+    that differ, exit code 2, nothing written; the same config says in one line that the run is finished and
+    where its results are (exit 0; its final row on stdout, as a run that ends prints it)."""
+    before = listing(finished_2k)
+    rc, out, err = train_cli(capsys, *SMOKE, "--total-steps", "2000", "--method", "sac_her_per", "--lr", "3e-4",
+                             "--out", finished_2k)
+    assert rc == 2 and out == [] and len(err) == 1, err
+    assert err[0].startswith("error: ") and "different config (differs in: method, sac.lr)" in err[0], err
+    assert listing(finished_2k) == before
+    rc, out, err = train_cli(capsys, *SMOKE, "--total-steps", "2000", "--keep-replay", "--out", finished_2k)
+    assert rc == 0 and len(err) == 1 and "finished at 2000 env steps" in err[0], err
+    assert str(finished_2k / "metrics.csv") in err[0] and "done.json" in err[0]
+    assert json.loads(out[-1])["env_steps"] == 2000
+    assert listing(finished_2k) == before
+
+
+def test_a_finished_run_continued_equals_one_planned_at_the_larger_budget(finished_2k, tmp_path, capsys):
+    """``train --continue F --total-steps 4000`` on a run finished at 2000 env steps (with --keep-replay) goes on
+    from its final checkpoint (networks, optimizer, replay, counters, random streams) and ends with the metrics
+    rows (but for wall time), diagnostics and final weights of a run planned at 4000 from the start, bit for bit.
+
+    Equal here because the old budget ends between episodes at an evaluation: fixed-length 50-step episodes
+    (--no-terminate-on-success) and evaluations every 100 env steps, both dividing 2000. A run finishing mid-episode
+    stores its episode cut and evaluates at its budget, where the planned run evaluates at the episode's end.
+    One counter legitimately differs in general: PER's importance-sampling exponent (the sampler's ``beta``,
+    ``set_progress(env_steps / total_steps)``) was annealed over 2000 steps before the continuation and over 4000
+    after, so with ``replay.is_weights`` on (off by default, and here) the first 2000 steps' weights differ from
+    the planned run's; with it off ``beta`` is computed but read by nothing. On a hinged task (contact) the
+    continued run, like any resumed one, differs by rounding once its fresh env's PhysX state shows (see SMOKE)."""
+    import shutil
+
+    import torch
+    cont = tmp_path / "continued"
+    shutil.copytree(finished_2k, cont)
+    rc, out, err = train_cli(capsys, "--continue", cont, "--total-steps", "4000", "--no-progress")
+    assert rc == 0, err
+    assert json.loads(out[-1])["env_steps"] == 4000
+    rc, _, err = train_cli(capsys, *SMOKE, "--total-steps", "4000", "--out", tmp_path / "planned")
+    assert rc == 0, err
+    for name in ("metrics.csv", "diagnostics.csv"):
+        a, b = read_rows(cont / name), read_rows(tmp_path / "planned" / name)
+        assert a == b and len(a) >= 40, name
+    wa, wb = (torch.load(d / "policy.pt", weights_only=True)["actor"] for d in (cont, tmp_path / "planned"))
+    assert wa.keys() == wb.keys() and all(torch.equal(wa[k], wb[k]) for k in wa)
+    ca, cb = (torch.load(d / "checkpoint.pt", weights_only=True) for d in (cont, tmp_path / "planned"))
+    assert all(torch.equal(ca["agent"]["networks"][k], cb["agent"]["networks"][k]) for k in cb["agent"]["networks"])
+    assert ca["counters"] == cb["counters"] | {"wall_time": ca["counters"]["wall_time"]}
+    assert ca["method"] is not None  # it kept its replay again, to be continued again
+    assert json.loads((cont / "config.json").read_text())["total_steps"] == 4000
+    assert json.loads((cont / "done.json").read_text())["final"]["env_steps"] == 4000
+    starts = json.loads((cont / "provenance.json").read_text())["starts"]
+    assert [s.get("continued_from") for s in starts] == [None, {"total_steps": 2000}]
+
+
+def test_continue_refuses_bad_input_in_one_line_writing_nothing(finished_2k, tmp_path, capsys):
+    """--continue on a folder without a finished run, a budget not above the run's, other settings beside it, or a
+    run that kept no replay, a sweep's run: one line naming the bad value, exit code 2, nothing written."""
+    import shutil
+    unfinished = tmp_path / "unfinished"
+    unfinished.mkdir()
+    (unfinished / "config.json").write_text((finished_2k / "config.json").read_text())
+    run_training(tiny(steps=100), tmp_path / "no_replay", show_progress=False)
+    swept = tmp_path / "swept"
+    shutil.copytree(finished_2k, swept)
+    (swept / "cell.json").write_text("{}")
+    cases = [
+        ((tmp_path / "nothing", "4000"), "--continue " + str(tmp_path / "nothing") + ": no run there"),
+        ((unfinished, "4000"), "its run has not finished; resume it with --config"),
+        ((finished_2k, "2000"), "--total-steps 2000: not more than the 2000 env steps"),
+        ((finished_2k, "1000"), "--total-steps 1000"),
+        ((finished_2k, "x"), "--total-steps: bad value 'x'"),
+        ((finished_2k, None), "needs --total-steps N"),
+        ((finished_2k, "4000", "--lr", "1e-3"), "only --total-steps goes with it, not --lr"),
+        ((finished_2k, "4000", "--out", tmp_path / "elsewhere"), "not --out"),
+        ((tmp_path / "no_replay", "4000"), "its checkpoint holds no replay (it finished without --keep-replay)"),
+        ((swept, "4000"), "a sweep's run (cell.json)"),
+    ]
+    for (folder, steps, *more), needle in cases:
+        before = {d: listing(d) for d in (folder, tmp_path / "elsewhere")}
+        args = ["--continue", folder, *(["--total-steps", steps] if steps else []), *more]
+        rc, out, err = train_cli(capsys, *args)
+        assert rc == 2 and out == [] and len(err) == 1, (args, err)
+        assert err[0].startswith("error: ") and needle in err[0], (args, err)
+        assert {d: listing(d) for d in before} == before, args
+
+
+def test_train_needs_out_or_continue(capsys):
+    rc, _, err = train_cli(capsys, "--total-steps", "50")
+    assert rc == 2 and err == ["error: --out is required (or --continue RUN --total-steps N)"]
