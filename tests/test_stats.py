@@ -184,8 +184,11 @@ def test_paired_interval_is_the_one_sample_interval_of_the_per_seed_differences(
     unpaired, pair = stats.compare(a, b, 0.1), stats.compare(a, b, 0.1, paired=True)
     assert unpaired.verdict == stats.INCONCLUSIVE and pair.verdict == stats.REPRODUCED
     assert pair.ci_high - pair.ci_low < (unpaired.ci_high - unpaired.ci_low) / 5
-    ci = ttest_1samp(a - b, 0).confidence_interval(0.95)   # the floor: the paired t interval
-    assert (pair.welch_low, pair.welch_high) == pytest.approx((ci.low, ci.high))
+    ci = ttest_1samp(a - b, 0).confidence_interval(0.95)   # the floor: the paired t interval, a sensitivity column
+    assert (pair.paired_t_low, pair.paired_t_high) == pytest.approx((ci.low, ci.high))
+    # the Welch columns stay the two-sample interval, which ignores the pairing (issue: it was the paired t)
+    assert (pair.welch_low, pair.welch_high) == pytest.approx((unpaired.welch_low, unpaired.welch_high))
+    assert pair.welch_high - pair.welch_low > 5 * (ci.high - ci.low)
     assert pair.ci_low <= ci.low and ci.high <= pair.ci_high and pair.ci_method.startswith("paired")
     assert pair.seeds_to_decide is None and (pair.mean_a, pair.mean_b) == (unpaired.mean_a, unpaired.mean_b)
     with pytest.raises(ValueError, match="paired sides need one value per seed"):
@@ -255,3 +258,45 @@ def test_holm_and_benjamini_hochberg():
     assert list(bh[:4]) == pytest.approx([0.02, 0.04, 0.04, 0.02]) and math.isnan(bh[4])
     assert list(stats.holm([0.9, 0.8])) == [1.0, 1.0]
     assert stats.holm([]).size == 0
+
+
+def test_signflip_p_is_exact_and_agrees_with_a_brute_force_count():
+    import itertools
+    x = np.array([-84.0, 17.0, 18.0, -124.0, 58.0, -96.0, -68.0, -63.0])
+    brute = np.mean([abs(np.dot(s, x)) >= abs(x.sum()) - 1e-9 for s in itertools.product((-1, 1), repeat=len(x))])
+    assert stats.signflip_p(x) == pytest.approx(brute)
+    assert stats.signflip_p(np.array([5.0, 6.0, 7.0, 8.0, 9.0])) == pytest.approx(2 / 32)   # only all-+ and all--
+    assert stats.signflip_p(np.zeros(6)) == 1.0
+
+
+def test_pairs_to_decide_is_the_exact_paired_t_power():
+    from scipy.stats import nct, t as t_dist
+    x = np.array([-84.0, 17.0, 18.0, -124.0, 58.0, -96.0, -68.0, -63.0])
+    n = stats.pairs_to_decide(x, margin=1.0)
+    d, sd = abs(x.mean()), x.std(ddof=1)
+
+    def power(k):
+        q = t_dist.ppf(0.975, k - 1)
+        return nct.sf(q, k - 1, d / sd * np.sqrt(k)) + nct.cdf(-q, k - 1, d / sd * np.sqrt(k))
+    assert power(n) >= 0.8 > power(n - 1)
+    c = stats.compare(x, np.zeros_like(x), 1.0, paired=True)
+    assert c.seeds_to_decide == n and f"~{n} pairs would likely decide it" in c.verdict_text()
+
+
+def test_no_paired_interval_below_five_pairs_but_the_sensitivity_columns_are_there():
+    a, b = np.array([77.0, 371, 479, 298]), np.array([161.0, 354, 461, 422])
+    c = stats.compare(a, b, 30.0, paired=True)
+    assert np.isnan(c.ci_low) and np.isnan(c.ci_high) and c.verdict == stats.INCONCLUSIVE
+    assert "not computed below 5 pairs" in c.verdict_text()
+    assert c.paired_t_low < c.diff < c.paired_t_high and 0 < c.signflip_p <= 1
+    assert not np.isnan(stats.compare(np.append(a, 229.0), np.append(b, 171.0), 30.0, paired=True).ci_low)
+
+
+def test_an_equivalence_read_off_a_floor_is_uninformative_not_decided():
+    zeros = np.zeros(8)
+    assert stats.compare(zeros, zeros, 0.1, paired=True).verdict == stats.UNINFORMATIVE
+    low = np.array([0.01, 0.02, 0.0, 0.01, 0.0, 0.01, 0.02, 0.01])
+    c = stats.compare(low, low[::-1], 0.1)
+    assert c.verdict == stats.UNINFORMATIVE and "below the margin" in c.verdict_text()
+    # the same spread and difference well above the floor is an equivalence that could have failed
+    assert stats.compare(low + 0.5, low[::-1] + 0.5, 0.1).verdict == stats.EQUIVALENT

@@ -23,8 +23,8 @@ from .paper import PAPER_TARGET
 RATE_MARGIN = 0.1      # success rates and sparse returns per episode (in [0, 1]): 10 percentage points
 COUNT_MARGIN = 0.1     # counts and env steps: 10% of the larger side's mean
 FAMILIES = {"paper": "the paper's claims (a)-(h')", "ablation": "the ablations",   # Holm/BH families
-            "updates": "total updates vs R's share (issue 39, defined before its runs)",
-            "paper_regime": "the paper's own regime (issue 41, results/paper_regime/PREREGISTRATION.md)"}
+            "updates": "total updates vs R's share (defined before its runs)",
+            "paper_regime": "the paper's own regime (preregistered: results/paper_regime/PREREGISTRATION.md)"}
 
 
 @dataclass(frozen=True)
@@ -56,6 +56,9 @@ class Claim:
     # that commit (its replication: the claim on seeds >= it alone, ``replication_rows``)
     post_hoc: str = ""
     replicate_from: Optional[int] = None
+    # what keeps the replication from being independent (e.g. one side's seeds were run before the definition);
+    # said beside it wherever it is cited. A post-hoc claim without replicate_from has no replication.
+    replication_caveat: str = ""
 
 
 def _t(method: str, arm: str = "paper", experiment: str = "transfer") -> Side:
@@ -65,7 +68,7 @@ def _t(method: str, arm: str = "paper", experiment: str = "transfer") -> Side:
 DUAL, HER = "dual_buffer", "sac_her_per"
 # From scratch, E off (the dual buffer at ratio 1/0) trains bit for bit like SAC+HER+PER (issue 39,
 # tests/test_e_mechanism.py), so the mechanism's "E off at 1 update per env step" side is SAC+HER+PER's own
-# from-scratch runs; the mechanism/e_off arm is kept as the negative control (scratch_e_off: exactly 0).
+# from-scratch runs; the mechanism/e_off arm is kept as an identity check of the code (scratch_e_off: exactly 0).
 SCRATCH_HER = Side("scratch", "paper", HER)
 N = "successful_train_episodes"
 R = "mean_eval_return"
@@ -164,12 +167,14 @@ CLAIMS: List[Claim] = [
     # ------------------------------------------------------------------ the mechanism: R's lost updates or E's batches
     # From scratch (no prior): at ratio 1/0 the dual buffer samples only R (real + hindsight rows), i.e.
     # SAC+HER+PER's algorithm; the paper's 0.6/0.4 gives R 0.6 updates per env step and E the other 0.4.
-    Claim("scratch_e_off", "negative control: from scratch, the dual buffer with E off (ratio 1/0) > sac_her_per: "
-                           "successful episodes (the same algorithm, bit for bit since issue 39: exactly 0 "
-                           "expected)", "", N,
+    # An identity check of the code, not a statistical control: both sides compute the same numbers. The
+    # stochastic A/A readings (reference HOW_MADE, parts 24-25) are the control of the from-scratch contrasts.
+    Claim("scratch_e_off", "identity check: from scratch, the dual buffer with E off (ratio 1/0) > sac_her_per: "
+                           "successful episodes (the same algorithm, bit for bit since its per-batch random draw "
+                           "was removed at ratio 1/0: exactly 0 expected)", "", N,
           Side("mechanism", "e_off", DUAL), SCRATCH_HER, relative_margin=True, group="ablation",
-          explains="from scratch, E off (ratio 1/0) minus SAC+HER+PER (the same algorithm, the negative control) "
-                   "is"),
+          explains="from scratch, E off (ratio 1/0) minus SAC+HER+PER (the same algorithm: an identity check of "
+                   "the code, not a statistical control) is"),
     Claim("scratch_e_batches", "from scratch, E's batches on top of R's 1 update per env step (1/0.6 updates "
                                "per step) > E off: successful episodes (E's batches' own effect)", "", N,
           Side("mechanism", "r_matched", DUAL), SCRATCH_HER, relative_margin=True,
@@ -191,19 +196,26 @@ CLAIMS: List[Claim] = [
                             "(0.6/0.4): successful episodes (what E costs in all: R's lost updates and E's "
                             "batches)", "", N, SCRATCH_HER, Side("scratch", "paper", DUAL),
           relative_margin=True, group="ablation", post_hoc="d885bfc", replicate_from=32,
+          replication_caveat="half-independent: the paper's dual buffer's seeds 32-47 were run before the "
+                             "definition",
           explains="from scratch, E off (ratio 1/0, i.e. SAC+HER+PER) minus the paper's dual buffer is"),
     Claim("scratch_r_matched", "from scratch, as many R updates as sac_her_per (1/0.6 updates per env step, E's "
                                "batches on top) > the paper's dual buffer: successful episodes (R's lost "
                                "updates, with E)", "", N, Side("mechanism", "r_matched", DUAL),
           Side("scratch", "paper", DUAL), relative_margin=True, group="ablation", post_hoc="d885bfc",
           replicate_from=16,
+          replication_caveat="not a replication: these are the claim's own pairs, and the paper's dual buffer's "
+                             "seeds 16-47 were run before the definition",
           explains="from scratch, R's updates matched (1/0.6 per env step, E's batches on top) change the dual "
                    "buffer's count by"),
     Claim("adapt_e_batches", "in adaptation on the dual buffer's prior, E's batches on top of R's 1 update per "
                              "env step (1/0.6 updates per step) > E off: successful episodes", "", N,
           Side("e_share", "r_matched", DUAL), Side("e_share", "e_off", DUAL), relative_margin=True,
-          group="ablation", explains="in adaptation, E's own batches (R keeps 1 update per env step) change the "
-                                     "count by"),
+          group="ablation", post_hoc="632a6a1",
+          replication_caveat="no replication: both arms had runs when it was defined (E off's seeds were rerun "
+                             "later with the fixed random stream; r_matched's were not)",
+          explains="in adaptation, E's own batches (R keeps 1 update per env step) change the "
+                   "count by"),
     Claim("adapt_r_updates", "in adaptation on the dual buffer's prior, E off at 0.6 updates per env step > E "
                              "off at 1: successful episodes (R's lost updates)", "", N,
           Side("e_share", "r_starved", DUAL), Side("e_share", "e_off", DUAL), relative_margin=True,
@@ -239,6 +251,8 @@ CLAIMS: List[Claim] = [
                           "paper's dual buffer: successful episodes (what R's lost updates cost over the whole "
                           "chain)", "", N, Side("matched_chain", "r_matched_all", DUAL), _t(DUAL),
           relative_margin=True, group="ablation", post_hoc="726ae27", replicate_from=16,
+          replication_caveat="half-independent: the paper's dual buffer's seeds 16-47 had been run before the "
+                             "definition; the arm grew from 16 to 32 seeds after failing Holm at 16",
           explains="R's updates matched in every stage change the dual buffer's count by"),
     # ------------------------------------------------------------------ total updates vs R's share (issue 39)
     # Defined (with their family, "updates") in the commit before any e_off_matched run existed. r_matched
@@ -283,7 +297,7 @@ CLAIM_COLUMNS = ["claim", "group", "statement", "paper", "metric", "side_a", "si
                  "prob_improvement", "margin", "verdict", "seeds_to_decide", "paired", "p_value", "p_holm", "p_bh",
                  "survives_holm", "p_equivalence", "ratio", "ratio_ci95_low", "ratio_ci95_high", "paper_ratio",
                  "paper_size", "machines", "machines_by_side", "machine_balanced", "pair_corr", "post_hoc",
-                 "replication"]
+                 "replication", "paired_t_ci95_low", "paired_t_ci95_high", "signflip_p"]
 
 
 def _in_arm(r: Dict[str, str], side: Side) -> bool:
@@ -417,6 +431,9 @@ def _claim_row(scores, c: Claim, resamples: int) -> dict:
                 "p_value": cmp.p_value, "p_equivalence": cmp.p_equivalence,
                 "machines": "; ".join(sorted(_machines(list(rows_a.values()) + list(rows_b.values())))),
                 "machines_by_side": by_side, "machine_balanced": balanced})
+    if cmp.paired:   # sensitivity analyses beside the verdict's interval (stats.compare)
+        row.update({"paired_t_ci95_low": cmp.paired_t_low, "paired_t_ci95_high": cmp.paired_t_high,
+                    "signflip_p": cmp.signflip_p})
     if seeds is not None and len(a) > 2 and np.std(a) > 0 and np.std(b) > 0:
         row["pair_corr"] = float(np.corrcoef(a, b)[0, 1])  # what pairing gains: the per-seed correlation
     if c.post_hoc:
@@ -431,15 +448,18 @@ def _claim_row(scores, c: Claim, resamples: int) -> dict:
 
 def replication(scores, c: Claim, resamples: int) -> str:
     """A claim defined after its data: the same claim on the seeds run after its definition alone
-    (``Claim.replicate_from`` on), as "seeds a-b: diff [low, high] verdict"."""
+    (``Claim.replicate_from`` on), as "seeds a-b: diff [low, high] verdict", and its caveat."""
+    if c.replicate_from is None:
+        return c.replication_caveat or "no replication"
+    caveat = f"; {c.replication_caveat}" if c.replication_caveat else ""
     keep = [r for r in scores if int(r["seed"]) >= c.replicate_from]
     row = _claim_row(keep, dataclasses.replace(c, post_hoc=""), resamples)
     if "diff" not in row:
-        return f"seeds >= {c.replicate_from}: not measured"
+        return f"seeds >= {c.replicate_from}: not measured{caveat}"
     seeds = sorted(set(_side_rows(keep, c.a, c.metric)) | set(_side_rows(keep, c.b, c.metric)))
     return (f"seeds {seeds[0]}-{seeds[-1]} (n = {row['n_a']}, {row['n_b']}{', paired' if row['paired'] == 'yes' else ''}): "
             f"{float(row['diff']):+.3g} [{float(row['diff_ci95_low']):.3g}, {float(row['diff_ci95_high']):.3g}] "
-            f"{row['verdict']}")
+            f"{row['verdict']}{caveat}")
 
 
 def _adjust(rows: List[dict]) -> None:
@@ -469,7 +489,7 @@ def claim_rows(scores: Sequence[Dict[str, str]], resamples: int = 10_000,
 
 
 def decided(row: dict) -> bool:
-    return "diff" in row and not row["verdict"].startswith(("inconclusive", "not measured"))
+    return "diff" in row and not row["verdict"].startswith(("inconclusive", "not measured", stats.UNINFORMATIVE))
 
 
 def explains(key: str) -> str:

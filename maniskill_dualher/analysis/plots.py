@@ -77,8 +77,10 @@ def _arm_colours() -> Dict[str, str]:
     for e in EXPERIMENTS.values():
         for a in e.arms:
             key = registry.colour_key(e.name, a.name)
-            if key not in out and not is_paper_treatment(e.name, a.name):
+            if key not in out and not a.colour and not is_paper_treatment(e.name, a.name):
                 out[key] = ARM_PALETTE[len(out) % len(ARM_PALETTE)]
+    for e in EXPERIMENTS.values():   # declared colours after the palette's: they take no palette slot
+        out.update({registry.colour_key(e.name, a.name): a.colour for a in e.arms if a.colour})
     return out
 
 

@@ -36,6 +36,7 @@ from ..fileio import atomic_write_text, csv_text, fmt
 from ..staging import Staged, kill_point
 from . import budget as budget_mod
 from . import diagnostics as diagnostics_mod
+from . import regime as regime_mod
 from . import claims as claims_mod
 from . import hyperparameters, plots, plots_budget, stats
 from .paper import PAPER_ADAPT_BUDGET, PAPER_ADAPT_STEPS
@@ -48,6 +49,12 @@ SCORES, CURVES = "scores.csv", "curves.csv"
 
 def _g(v) -> str:
     return fmt(float(f"{v:.3g}")) if isinstance(v, float) and v == v else fmt(v)
+
+
+def _ci(r: dict) -> str:
+    """A claim's interval as "[low, high]", or what stands in its place where none was computed."""
+    lo, hi = float(r["diff_ci95_low"]), float(r["diff_ci95_high"])
+    return f"[{_g(lo)}, {_g(hi)}]" if lo == lo and hi == hi else "(no interval)"
 
 
 def claims_md(rows: List[dict]) -> List[str]:
@@ -64,8 +71,8 @@ def claims_md(rows: List[dict]) -> List[str]:
                f"{r['paper_size']}" if r.get("paper_size") else ""
         p_imp = f"{r['prob_improvement']:.2f}" if "prob_improvement" in r else ""
         lines.append(f"| {r['claim']} | {r['statement']} | {r['paper']}{size} | {_g(r['mean_a'])} vs "
-                     f"{_g(r['mean_b'])} (n = {r['n_a']}, {r['n_b']}) | {_g(r['diff'])} [{_g(r['diff_ci95_low'])}, "
-                     f"{_g(r['diff_ci95_high'])}]{' paired' if r.get('paired') == 'yes' else ''} | "
+                     f"{_g(r['mean_b'])} (n = {r['n_a']}, {r['n_b']}) | {_g(r['diff'])} {_ci(r)}"
+                     f"{' paired' if r.get('paired') == 'yes' else ''} | "
                      f"{p_imp} | **{r['verdict']}** | {holm} |")
     return lines
 
@@ -78,11 +85,22 @@ def md_table(rows: List[dict], columns: List[str]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def adapt_budgets(curves: Sequence[dict]) -> Dict[tuple, int]:
+    """(experiment, arm) -> the adaptation env steps its runs reached (the smallest over its runs' last
+    evaluations): the budget as run, whatever the preset said."""
+    last: Dict[tuple, Dict[str, int]] = {}
+    for r in curves:
+        if r.get("role") == "adapt":
+            d = last.setdefault((r["experiment"], r["arm"]), {})
+            d[r["run"]] = max(d.get(r["run"], 0), int(float(r["env_steps"])))
+    return {k: min(v.values()) for k, v in last.items()}
+
+
 FAMILY_TITLES = [f"{t} (`{g}`)" for g, t in claims_mod.FAMILIES.items()]
 
 
 def summary_md(name: str, sweep: Optional[dict], scores, tables, claims, figures: List[str], unfinished: List[str],
-               budget_rows: Sequence[dict] = ()) -> str:
+               budget_rows: Sequence[dict] = (), regime_rows: Sequence[dict] = (), curves: Sequence[dict] = ()) -> str:
     sweep = sweep or {}
     runs = sorted({r["run"] for r in scores})
     s = [f"# Results: {name}" + (f" (preset {sweep['preset']})" if sweep.get("preset") else ""), ""]
@@ -90,11 +108,20 @@ def summary_md(name: str, sweep: Optional[dict], scores, tables, claims, figures
              + (f"; {len(unfinished)} runs unfinished (not counted)" if unfinished else "") + ".")
     if sweep.get("budgets"):
         b = sweep["budgets"]
-        s.append(f"Budgets (env steps): single-task {b['single']}; source stage {b['source']}; adaptation "
-                 f"{b['adapt']} (paper's adaptation: {PAPER_ADAPT_BUDGET}; ours is "
-                 f"{100 * max(b['adapt'].values()) / PAPER_ADAPT_STEPS:.2g}% of it).")
-    s.append("Our tasks are ManiSkill3 re-creations of the RLBench ones and our budgets are far smaller: compare "
-             "directions, not absolute counts.")
+        s.append(f"The preset's budgets (env steps): single-task {b['single']}; source stage {b['source']}; "
+                 f"adaptation {b['adapt']}.")
+    ran = adapt_budgets(curves)
+    if ran:
+        by_n: Dict[int, List[str]] = {}
+        for (e, a), n in sorted(ran.items()):
+            by_n.setdefault(n, []).append(f"{e}/{a}")
+        s.append("Adaptation budgets as run (each arm's runs' last evaluation in `curves.csv`; an arm's settings "
+                 "may set its own): " + "; ".join(f"{n:,} env steps, {100 * n / PAPER_ADAPT_STEPS:.3g}% of the "
+                                                  f"paper's ({', '.join(arms)})" for n, arms in sorted(by_n.items()))
+                 + f". The paper's adaptation: {PAPER_ADAPT_BUDGET}.")
+    s.append("Our tasks are ManiSkill3 re-creations of the RLBench ones" + (
+        " and our budgets are far smaller" if not ran or min(ran.values()) < PAPER_ADAPT_STEPS else "")
+        + ": compare directions, not absolute counts.")
     if sweep.get("settings"):
         s.append(f"Settings given to this sweep: `{' '.join(sweep['settings'])}`.")
     merged = sweep.get("merged", [])
@@ -115,12 +142,16 @@ def summary_md(name: str, sweep: Optional[dict], scores, tables, claims, figures
     s += ["## Verdicts (`claims.csv`)", "",
           "Each claim is 'A > B' (the paper's direction, or the ablation's question). Each side is one score "
           "per seed; the difference of means A - B gets a 95% interval (" + stats.CI_METHOD
-          + ", `analysis/stats.py`; a Welch t interval beside it in `claims.csv`), and P(A > B) is the "
+          + ", `analysis/stats.py`; beside it in `claims.csv` the two-sample Welch t interval, which ignores "
+          "any pairing, and for paired claims two sensitivity analyses that never set the verdict: the paired t "
+          "interval and an exact sign-flip permutation p; no paired interval below 5 pairs), and P(A > B) is the "
           "probability of improvement (Mann-Whitney, as in rliable). **reproduced / supported**: the interval "
           "excludes 0 in A's favour; **contradicted**: it excludes 0 the other way; **no difference larger than "
           f"X**: it lies within +-X (X = {claims_mod.RATE_MARGIN} for rates and returns, "
-          f"{claims_mod.COUNT_MARGIN:.0%} of the larger mean for counts and env steps); **inconclusive** "
-          "otherwise, with the seeds per side that would decide it at 80% power at the observed spread and "
+          f"{claims_mod.COUNT_MARGIN:.0%} of the larger mean for counts and env steps); **uninformative**: it "
+          "lies within +-X but both sides' means are below X, so no difference that large could appear (a "
+          "floor; not counted as decided); **inconclusive** otherwise, with the seeds per side (paired: the "
+          "pairs, by the exact paired t power) that would decide it at 80% power at the observed spread and "
           "difference. **paired**: decided on the seeds whose two sides adapted one prior (the same source-stage "
           "runs, or the same config and seed trained again with every recorded source-stage score equal), when "
           "they are at least half of the smaller side's seeds; the interval is on their per-seed differences.", "",
@@ -140,21 +171,23 @@ def summary_md(name: str, sweep: Optional[dict], scores, tables, claims, figures
         s += ["Claims whose two sides are unbalanced by machine (a machine holds a different share of A's seeds "
               "than of B's; `machines_by_side` in `claims.csv`): " + ", ".join(unbalanced) + ".", ""]
     for group, title in (("paper", "The paper's claims"), ("ablation", "Why: ablations of the adaptation stage"),
-                         ("updates", "Total updates vs R's share (defined before their runs, issue 39)"),
-                         ("paper_regime", "The paper's own regime (preregistered, issue 41)")):
+                         ("updates", "Total updates vs R's share (defined before their runs)"),
+                         ("paper_regime", "The paper's own regime (preregistered)")):
         rows = [r for r in claims if r["group"] == group]
         if rows:
             s += [f"### {title}", ""] + claims_md(rows) + [""]
     post = [r for r in claims if r.get("post_hoc")]
     if post:
         s += ["Defined after (some of) their data were seen (marked ‡ in the README; `post_hoc` in `claims.csv` "
-              "names the commit), each replicated on the seeds run after that commit alone (`replication`): "
+              "names the commit), each with its replication on the seeds run after that commit (`replication`, with "
+              "what keeps it from being independent, where something does): "
               + "; ".join(f"{r['claim']} ({r['post_hoc']}): {r['replication']}" for r in post) + ".", ""]
+    s += regime_mod.summary_lines(regime_rows) + regime_mod.sequential_lines(curves)
     why = [r for r in claims if r["group"] != "paper" and "diff" in r and claims_mod.explains(r["claim"])]
     if why:
         s += ["### Why the dual buffer's count differs: one sentence per ablation claim", ""]
-        s += [f"- {claims_mod.explains(r['claim'])} {_g(r['diff'])} [{_g(r['diff_ci95_low'])}, "
-              f"{_g(r['diff_ci95_high'])}] (`{r['metric']}`, n = {r['n_a']}, {r['n_b']}): **{r['verdict']}**"
+        s += [f"- {claims_mod.explains(r['claim'])} {_g(r['diff'])} {_ci(r)} "
+              f"(`{r['metric']}`, n = {r['n_a']}, {r['n_b']}): **{r['verdict']}**"
               + (f", {'survives' if r['survives_holm'] == 'yes' else 'does not survive'} Holm"
                  if r.get("survives_holm") else "") + f" (claim {r['claim']})." for r in why] + [""]
     if budget_rows:
@@ -341,6 +374,10 @@ def _build(src: Path, out: Path, name: str, resamples: int, reference: Optional[
     if budget_rows:
         atomic_write_text(out / "budget.csv", csv_text(budget_rows, budget_mod.BUDGET_COLUMNS))
         written.append("budget.csv")
+    regime_rows = regime_mod.regime_rows(curves)
+    if regime_rows:
+        atomic_write_text(out / "regime.csv", csv_text(regime_rows, regime_mod.COLUMNS))
+        written.append("regime.csv")
     diag_rows = diagnostics_mod.diagnostic_rows(scores)
     if diag_rows:
         atomic_write_text(out / "diagnostics.csv", csv_text(diag_rows, diagnostics_mod.COLUMNS))
@@ -361,7 +398,7 @@ def _build(src: Path, out: Path, name: str, resamples: int, reference: Optional[
             figures.append(fig)
             written.append(fig)
     atomic_write_text(out / "summary.md", summary_md(name, sweep, scores, tables, claims, figures, unfinished,
-                                                     budget_rows))
+                                                     budget_rows, regime_rows, curves))
     written.append("summary.md")
     return written
 

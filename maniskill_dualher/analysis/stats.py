@@ -74,6 +74,8 @@ Verdicts follow the interval and nothing else:
 * **contradicted**: the CI excludes 0 the other way;
 * **no difference larger than X**: the CI lies within +-X, where X is the claim's stated margin of
   practical equivalence;
+* **uninformative**: the CI lies within +-X, but both sides are non-negative with means below X, so no
+  difference as large as X could appear (a floor, e.g. every run at 0 success): not counted as decided;
 * **inconclusive**: none of these.
 
 For an inconclusive claim we say how many seeds per side would likely decide it, at 80% power:
@@ -98,9 +100,13 @@ both sides have it; when the seeds that pair are at least half of the smaller si
 ``MIN_SEEDS``), the claim is decided on them alone, paired, and the other seeds are left out; otherwise it is
 decided on every seed, unpaired. For the per-seed differences x_s = A_s - B_s, ``compare(..., paired=True)``
 gives the same symmetric bootstrap-t on the one sample x (resampling seeds, studentized by sd(x*)/sqrt(n)),
-floored at the paired t interval (reported as the Welch columns), and seeds_to_decide uses var(x) in place of
-s_A^2 + s_B^2. It is the same code path as the two-sample interval with B = 0 (one stratum, df = n - 1); when
-every difference is 0 (the negative control ``scratch_e_off``) the interval is [0, 0].
+floored at the paired t interval, and the advice counts pairs, exactly (``pairs_to_decide``: the noncentral t
+power of the paired t test at the observed mean and sd of x). Below ``MIN_PAIRS`` (5) pairs no interval is
+computed: at 4 pairs, near-equal differences make resamples of tiny spread and |t*| a huge quantile. Beside
+it, as sensitivity analyses that never set the verdict: the paired t interval (``paired_t_low``/``_high``)
+and the exact sign-flip permutation p (``signflip_p``); the Welch columns stay the two-sample interval that
+ignores the pairing. It is the same code path as the two-sample interval with B = 0 (one stratum, df = n - 1); when
+every difference is 0 (the identity check ``scratch_e_off``) the interval is [0, 0].
 Pairing is decided from the data (``claims.paired``), never by the outcome. Coverage, measured as above with
 a shared prior term per seed (``python bench/ci_coverage.py --paired --reps 1000 --resamples
 1000 --n 6 16 32 --methods percentile welch-t "symmetric bootstrap-t"``, CPU B): the chosen interval covers
@@ -149,8 +155,14 @@ REPRODUCED = "reproduced"
 CONTRADICTED = "contradicted"
 EQUIVALENT = "no difference larger than"
 INCONCLUSIVE = "inconclusive"
+# an equivalence read off a floor: both sides non-negative with means below the margin, so no difference as large
+# as the margin could appear whatever the methods did (e.g. every run at 0 evaluation success); not "decided"
+UNINFORMATIVE = "uninformative"
 ALPHA = 0.05            # 1 - the intervals' level: what an adjusted p-value is held to
 MIN_SEEDS = 3            # fewer per side: no CI is computed (a bootstrap of 2 values is just their range)
+# fewer pairs: no paired bootstrap-t interval. At 4 pairs a near-tie of the differences gives resamples of
+# tiny spread and |t*| a huge quantile ([-7620, 7540] once, where the paired t said [-158, 71])
+MIN_PAIRS = 5
 MAX_SEEDS_ADVICE = 1000  # above this, "more seeds" is no advice
 POWER = 0.8              # seeds_to_decide: power of a two-sided 5% test at the observed difference
 
@@ -176,21 +188,33 @@ class Comparison:
     prob_improvement: float
     margin: float
     verdict: str
-    seeds_to_decide: Optional[int]   # per side, for an inconclusive verdict
-    welch_low: float = math.nan      # Welch t interval, a cross-check
+    seeds_to_decide: Optional[int]   # per side (paired: pairs), for an inconclusive verdict
+    welch_low: float = math.nan      # two-sample Welch t interval (ignores any pairing), a cross-check
     welch_high: float = math.nan
     ci_method: str = BOOT_T          # what produced ci_low/ci_high (see the module doc)
     paired: bool = False
     p_value: float = math.nan        # two-sided test of A = B: the interval at level 1 - p just reaches 0
     p_equivalence: float = math.nan  # the interval at level 1 - p just reaches +-margin (1: |diff| >= margin)
+    # paired only, sensitivity analyses beside the interval (never the verdict): the paired t interval and the
+    # exact two-sided sign-flip permutation p of the mean difference
+    paired_t_low: float = math.nan
+    paired_t_high: float = math.nan
+    signflip_p: float = math.nan
 
     def verdict_text(self) -> str:
         if self.verdict == EQUIVALENT:
             return f"{EQUIVALENT} {self.margin:.3g}"
+        if self.verdict == UNINFORMATIVE:
+            why = "every run at 0 on both sides" if self.mean_a == 0 == self.mean_b else \
+                f"both means below the margin {self.margin:.3g}, so no difference that large could appear"
+            return f"{UNINFORMATIVE} ({why})"
         if self.verdict == INCONCLUSIVE:
             if self.n_a < MIN_SEEDS or self.n_b < MIN_SEEDS:
                 return f"{INCONCLUSIVE} (needs >= {MIN_SEEDS} seeds per side)"
-            more = f"~{self.seeds_to_decide} seeds per side would likely decide it (80% power)" \
+            if self.paired and math.isnan(self.ci_low) and self.n_a < MIN_PAIRS:
+                return f"{INCONCLUSIVE} (interval not computed below {MIN_PAIRS} pairs)"
+            unit = "pairs" if self.paired else "seeds per side"
+            more = f"~{self.seeds_to_decide} {unit} would likely decide it (80% power)" \
                 if self.seeds_to_decide is not None else "more seeds would not decide it at this spread"
             return f"{INCONCLUSIVE} ({more})"
         return self.verdict
@@ -442,6 +466,51 @@ def seeds_to_decide(a: np.ndarray, b: np.ndarray, margin: float, power: float = 
     return n if n <= MAX_SEEDS_ADVICE else None
 
 
+def pairs_to_decide(x: np.ndarray, margin: float, power: float = POWER) -> Optional[int]:
+    """Pairs at which the two-sided 5% paired t test would, with ``power``, exclude 0 at the observed mean
+    difference, or fit the interval in +-margin: exact, from the noncentral t distribution, taking the observed
+    mean and sd of the differences ``x`` as the truth. At least len(x) + 1; None above MAX_SEEDS_ADVICE."""
+    from scipy.stats import nct, t as t_dist
+
+    x = np.asarray(x, float)
+    sd = float(x.std(ddof=1))
+    if not sd > 0:
+        return None
+    d = abs(float(x.mean()))
+    effects = [e for e in (d, margin - d) if e > 0]
+    if not effects:
+        return None
+
+    def pw(n: int, e: float) -> float:
+        q, ncp = t_dist.ppf(0.975, n - 1), e / sd * math.sqrt(n)
+        return float(nct.sf(q, n - 1, ncp) + nct.cdf(-q, n - 1, ncp))
+
+    best = None
+    for e in effects:
+        lo, hi = max(len(x) + 1, 2), MAX_SEEDS_ADVICE
+        if pw(hi, e) < power:
+            continue
+        while lo < hi:   # power grows with n
+            mid = (lo + hi) // 2
+            lo, hi = (mid + 1, hi) if pw(mid, e) < power else (lo, mid)
+        best = lo if best is None else min(best, lo)
+    return best
+
+
+def signflip_p(x: Sequence[float], reps: int = 200_000, seed: int = 0) -> float:
+    """Two-sided sign-flip permutation p of mean(x) = 0 for paired differences x (under H0 each difference's
+    sign is a fair coin): exact over all 2^n sign patterns up to n = 20, else ``reps`` seeded random patterns."""
+    x = np.asarray(x, float)
+    n = len(x)
+    obs = abs(float(x.sum()))
+    tol = 1e-9 * max(1.0, float(np.abs(x).sum()))
+    if n <= 20:
+        signs = ((np.arange(2 ** n)[:, None] >> np.arange(n)) & 1) * 2 - 1
+    else:
+        signs = np.random.default_rng(seed).integers(0, 2, (reps, n)) * 2 - 1
+    return float(np.mean(np.abs(signs @ x) >= obs - tol))
+
+
 def bonferroni_level(n_claims: int, level: float = 0.95) -> float:
     """Per-claim confidence level that keeps the chance of any false exclusion of 0 below 1 - level."""
     return 1 - (1 - level) / max(int(n_claims), 1)
@@ -472,22 +541,35 @@ def compare(a: Sequence[float], b: Sequence[float], margin: float, resamples: in
     if min(len(a), len(b)) < MIN_SEEDS:
         return Comparison(len(a), len(b), mean_a, mean_b, diff, math.nan, math.nan, p_imp, margin,
                           INCONCLUSIVE, None, ci_method="none (too few seeds)", paired=paired)
+    # the two-sample Welch interval ignores any pairing: the cross-check of an unpaired reading
+    wl, wh, _, _ = _welch(a, b, level)
+    sens = {}
+    if paired:
+        x = a - b
+        tl, th, _, _ = _welch(x, np.zeros_like(x), level)   # one sample beside zeros: the paired t interval
+        sens = dict(paired_t_low=tl, paired_t_high=th, signflip_p=signflip_p(x))
+        if len(x) < MIN_PAIRS:
+            return Comparison(len(a), len(b), mean_a, mean_b, diff, math.nan, math.nan, p_imp, margin,
+                              INCONCLUSIVE, pairs_to_decide(x, margin), wl, wh,
+                              f"none (fewer than {MIN_PAIRS} pairs)", paired, **sens)
     # paired: the one sample of per-seed differences beside zeros, i.e. the two-sample code with B = 0
     x, y = (a - b, np.zeros_like(a)) if paired else (a, b)
     lo, hi, how = _diff_ci(x, y, resamples, seed, level, BOOT_T)
-    wl, wh, _, _ = _welch(x, y, level)
     p, p_eq = _p_values(x, y, resamples, seed, level, margin)
     if lo > 0:
         verdict = REPRODUCED
     elif hi < 0:
         verdict = CONTRADICTED
     elif -margin <= lo and hi <= margin:
-        verdict = EQUIVALENT
+        floor = min(a.min(), b.min()) >= 0 and max(mean_a, mean_b) < margin
+        verdict = UNINFORMATIVE if floor else EQUIVALENT
     else:
         verdict = INCONCLUSIVE
-    need = seeds_to_decide(x, y, margin) if verdict == INCONCLUSIVE else None
+    need = None
+    if verdict == INCONCLUSIVE:
+        need = pairs_to_decide(x, margin) if paired else seeds_to_decide(x, y, margin)
     return Comparison(len(a), len(b), mean_a, mean_b, diff, lo, hi, p_imp, margin, verdict, need, wl, wh,
-                      ("paired " if paired else "") + how, paired, p, p_eq)
+                      ("paired " if paired else "") + how, paired, p, p_eq, **sens)
 
 
 # --------------------------------------------------------------------------- a mean over seeds (tables, plots, evaluate)
@@ -571,3 +653,41 @@ def wilson(successes: int, n: int, level: float = 0.95) -> Tuple[float, float]:
     from scipy.stats import binomtest
     ci = binomtest(k, n).proportion_ci(confidence_level=level, method="wilson")
     return float(ci.low), float(ci.high)
+
+
+# --------------------------------------------------------------------------- a group-sequential look (paired t)
+# results/paper_regime/AMENDMENT.md: looks at 8 and 16 pairs, two-sided Lan-DeMets O'Brien-Fleming critical
+# values for the paired t (bench/group_sequential.py), a non-binding futility bound at the first look
+SEQUENTIAL_LOOKS = ((8, 3.94), (16, 2.17))
+SEQUENTIAL_FUTILITY = 0.5
+
+
+def sequential_look(x: Sequence[float]) -> Dict[str, object]:
+    """The amendment's decision on paired differences ``x`` (in seed order): at the last look they reach, its
+    t, critical value, repeated confidence interval mean +- c se, the exact sign-flip p and the skewness of the
+    differences (sensitivity), and the decision: "stop: A > B" / "stop: A < B" (|t| > c, and at the first look
+    every difference of one sign), "may stop for futility" (first look, |t| < the futility bound), "continue",
+    "decide at the final look" or "no look yet"."""
+    from scipy.stats import skew
+
+    x = np.asarray(x, float)
+    looks = [(n, c) for n, c in SEQUENTIAL_LOOKS if len(x) >= n]
+    if not looks:
+        return {"pairs": len(x), "decision": f"no look yet ({len(x)} of {SEQUENTIAL_LOOKS[0][0]} pairs)"}
+    n, c = looks[-1]
+    first = n == SEQUENTIAL_LOOKS[0][0]
+    d = x[:n]
+    se = float(d.std(ddof=1)) / math.sqrt(n)
+    m = float(d.mean())
+    t = m / se if se > 0 else (math.copysign(math.inf, m) if m else 0.0)
+    one_sign = bool(np.all(d > 0) or np.all(d < 0))
+    if abs(t) > c and (one_sign or not first):
+        decision = "stop: A > B" if t > 0 else "stop: A < B"
+    elif first and abs(t) < SEQUENTIAL_FUTILITY:
+        decision = "may stop for futility"
+    elif first:
+        decision = "continue"
+    else:
+        decision = "inconclusive at the final look"
+    return {"pairs": n, "t": t, "critical": c, "rci_low": m - c * se, "rci_high": m + c * se,
+            "signflip_p": signflip_p(d), "skewness": float(skew(d)) if se > 0 else 0.0, "decision": decision}

@@ -77,6 +77,9 @@ class Arm:
     # the legend name in every figure (arm_display); arms of one colour share it. Empty: the paper arm's
     # "paper's settings" where it changes nothing, else the name (tests hold every registry arm to a display)
     display: str = ""
+    # a declared colour (any matplotlib colour): outside the palette, so an arm added with one restyles no other;
+    # empty: the next palette colour in registry order
+    colour: str = ""
 
     def __post_init__(self):
         _check_feeds(f"arm {self.name!r}", self.feeds)
@@ -203,10 +206,11 @@ EXPERIMENTS: Dict[str, Experiment] = {e.name: e for e in (
     Experiment("mechanism", "Where E's cost comes from, without transfer: R's lost updates vs E's own batches",
                "scratch", methods=("dual_buffer",),
                doc="total updates vs R's share (e_off_matched); E off is SAC+HER+PER bit for bit, so the claims read "
-                   "SAC+HER+PER's own from-scratch runs for it and e_off is the negative control (scratch_e_off: "
+                   "SAC+HER+PER's own from-scratch runs for it and e_off is the identity check (scratch_e_off: "
                    "exactly 0)", arms=(
         Arm("e_off", ("adapt.replay.ratio=1/0",),
-            doc="E never sampled: SAC+HER+PER bit for bit (the negative control; claims use SAC+HER+PER's runs)",
+            doc="E never sampled: SAC+HER+PER bit for bit (an identity check of the code; claims use "
+                "SAC+HER+PER's runs)",
             display=E_OFF),
         Arm("r_matched", ("adapt.sac.updates_per_step=1/0.6",),
             doc="1/0.6 updates per env step: R gets SAC+HER+PER's updates, E's batches on top", display=R_MATCHED),
@@ -278,7 +282,7 @@ EXPERIMENTS: Dict[str, Experiment] = {e.name: e for e in (
             methods=("sac_her_per",), prior_method="sac_her_per",
             doc="uniform-random actions for all 3.6M env steps, no updates: the count chance gives (the baseline "
                 "beside every count of this experiment)",
-            display="uniform-random actions, no updates"),
+            display="uniform-random actions, no updates", colour="#252525"),
     )),
     Experiment("regime", "A longer adaptation (4x), with updates per env step or per episode", "chain",
                methods="transfer", doc="do scarce updates decide the sign?", arms=(
