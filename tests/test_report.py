@@ -125,7 +125,7 @@ def test_claims_are_computed_from_the_numbers(folder):
     # CloseBox curves: dual [0, 5..7] vs sac [0, 0..2], paired by seed on 3 seeds: below 5 pairs no interval
     # decides (the bootstrap-t is unstable there); the paired t and the sign-flip p stand beside as sensitivity
     f = claims["f"]
-    assert f["verdict"] == "inconclusive (interval not computed below 5 pairs)" and f["diff_ci95_low"] == ""
+    assert f["verdict"] == "inconclusive (interval not computed below 5 pairs)" and f["diff_ci95_low"] == "nan"
     assert 0 < float(f["paired_t_ci95_low"]) < float(f["diff"]) < float(f["paired_t_ci95_high"])
     assert float(f["signflip_p"]) == pytest.approx(2 / 8)    # 3 pairs, all one sign: 2 of the 8 sign patterns
     assert claims["e"]["verdict"].startswith("not measured")
