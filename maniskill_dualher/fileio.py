@@ -52,6 +52,22 @@ def atomic_write_with(path: PathLike, write: Callable[[str], None]) -> None:
     _atomic(path, write)
 
 
+def plural(n: int, word: str, many: Optional[str] = None) -> str:
+    """``n`` and its noun, singular for one: plural(1, "episode") -> "1 episode", plural(3, "run") -> "3 runs"."""
+    return f"{n} {word if n == 1 else (many or word + 's')}"
+
+
+def steps_text(v: float) -> str:
+    """An env-step count as an axis tick: 0, 500, 4k, 12.5k, 3M, 3.6M (never "3000k")."""
+    v = float(v)
+    if v == 0:
+        return "0"
+    for size, unit in ((1e6, "M"), (1e3, "k")):
+        if abs(v) >= size:
+            return f"{v / size:g}{unit}"
+    return f"{v:g}"
+
+
 def fmt(v) -> str:
     """A table cell: floats to 6 significant digits (nan as 'nan'), None as empty."""
     if isinstance(v, float):

@@ -783,3 +783,52 @@ def test_ablation_legends_are_registry_display_names_one_colour_per_arm(tmp_path
     for fig in {f for f, *_ in drawn}:
         looks = [(c, ls) for f, _, c, ls in drawn if f == fig]
         assert len(looks) == 2 * len(set(looks)), f"{fig}: two curves drawn alike"   # two panels each
+
+
+def _train_folder(run: Path, done=True):
+    """A folder as `train --out RUN` leaves it: no cell.json (no sweep), diagnostics.csv beside metrics.csv."""
+    _write_run(run, _cfg("ReachTarget-v1", "dual_buffer", 0), [0, 3, 9], [0.0, 2.0, 5.0], [], done=done)
+    (run / "cell.json").unlink()
+    (run / "diagnostics.csv").write_text("env_steps,R_alpha,R_entropy,R_qf_loss,R_qf_values,R_td_abs,R_updates,"
+                                         "E_alpha,E_qf_loss,updates\n100,0.005,5,0.3,0.1,0.8,1,,,1\n"
+                                         "200,0.004,4,0.1,0.5,0.4,100,0.004,0.01,101\n"
+                                         "300,0.003,3,0.05,0.7,0.2,100,0.003,0.02,201\n")
+
+
+def test_report_of_one_run_draws_its_curves_and_says_its_numbers(tmp_path, capsys):
+    """Issue 51: `report RUN` on train's own folder writes RUN/curves.png (every panel its files fill, none empty)
+    and prints the final evaluation, the successful training episodes and the env steps; exit 0."""
+    from maniskill_dualher.analysis import run_curves
+    run = tmp_path / "run"
+    _train_folder(run)
+    assert report.main([str(run)]) == 0
+    out = capsys.readouterr().out
+    assert (run / "curves.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "300 of 300 env steps (finished)" in out and "successful training episodes: 9 of 6\n" in out
+    assert "final evaluation (env step 300, 10 episodes): success 0.50, return 5" in out
+    assert not [p for p in run.iterdir() if p.name.startswith(".")]  # written atomically: no temp file left
+    from maniskill_dualher import rundir
+    titles = [p["title"] for p in run_curves.panels(rundir.read_metrics(run), rundir.read_metrics(run, "diagnostics.csv"))]
+    assert titles[:3] == ["Evaluation success", "Evaluation return", "Training episodes"]
+    assert "Critic loss" in titles and "Alpha (entropy coefficient)" in titles
+    # a sweep's folder holding only such runs says what they are, in the singular for one
+    assert report.main([str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "1 finished run of no sweep" in err and f"report {run}" in err and "runs)" not in err
+
+
+def test_report_of_a_run_without_an_evaluation_says_so(tmp_path, capsys):
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "config.json").write_text(_cfg("ReachTarget-v1", "sac", 0).to_json())
+    assert report.main([str(run)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "without an evaluation yet" in err[0] and not (run / "curves.png").exists()
+
+
+def test_step_ticks_and_counts_read_in_units():
+    """Issue 51: env-step ticks in k or M (3M, not 3000k); one of a thing is singular."""
+    from maniskill_dualher.fileio import plural, steps_text
+    assert [steps_text(v) for v in (0, 500, 4000, 12_500, 1e6, 3_000_000, 3_600_000)] == \
+        ["0", "500", "4k", "12.5k", "1M", "3M", "3.6M"]
+    assert (plural(1, "episode"), plural(2, "episode"), plural(0, "worker")) == ("1 episode", "2 episodes", "0 workers")

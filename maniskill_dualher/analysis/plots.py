@@ -29,7 +29,7 @@ import numpy as np
 from ..config import TASKS
 from ..experiment import registry
 from ..experiment.registry import EXPERIMENTS, KINDS, PAPER_ARM, PAPER_CHAIN, is_paper_treatment
-from ..fileio import atomic_write_with
+from ..fileio import atomic_write_with, steps_text
 from ..methods import METHOD_SPECS
 from . import stats
 
@@ -124,10 +124,11 @@ def mean_band(by_seed: Dict[int, Dict[int, dict]], key: str):
 
 
 def _kilo(ax) -> None:
-    """Env-step ticks as 0, 4k, 8k, ...: at most 5 ticks, so long budgets never run together."""
+    """Env-step ticks as 0, 4k, 8k, ... or 0, 1M, 2M, ... (``fileio.steps_text``): at most 5 ticks, so long
+    budgets never run together."""
     from matplotlib.ticker import FuncFormatter, MaxNLocator
     ax.xaxis.set_major_locator(MaxNLocator(nbins=5, steps=[1, 2, 2.5, 4, 5, 10]))
-    ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v / 1000:g}k" if v else "0"))
+    ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: steps_text(v)))
 
 
 def draw(ax, groups: Dict[str, Tuple[Dict[int, Dict[int, dict]], str, str, str]], key: str, title: str,

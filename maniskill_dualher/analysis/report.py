@@ -32,13 +32,13 @@ from .. import rundir
 from ..cmdline import OneLineParser, missing_package
 from ..config import ConfigError
 from ..experiment import registry  # plain data: no torch, no simulator
-from ..fileio import atomic_write_text, csv_text, fmt
+from ..fileio import atomic_write_text, csv_text, fmt, plural
 from ..staging import Staged, kill_point
 from . import budget as budget_mod
 from . import diagnostics as diagnostics_mod
 from . import regime as regime_mod
 from . import claims as claims_mod
-from . import hyperparameters, plots, plots_budget, stats
+from . import hyperparameters, plots, plots_budget, run_curves, stats
 from .paper import PAPER_ADAPT_BUDGET, PAPER_ADAPT_STEPS
 from .runs import (CURVE_COLUMNS, METRICS, SCORE_COLUMNS, curve_key, curve_rows, load_runs, read_rows,
                    score_key, score_rows, unique_rows)
@@ -104,8 +104,8 @@ def summary_md(name: str, sweep: Optional[dict], scores, tables, claims, figures
     sweep = sweep or {}
     runs = sorted({r["run"] for r in scores})
     s = [f"# Results: {name}" + (f" (preset {sweep['preset']})" if sweep.get("preset") else ""), ""]
-    s.append(f"{len(runs)} finished runs in `{SCORES}`"
-             + (f"; {len(unfinished)} runs unfinished (not counted)" if unfinished else "") + ".")
+    s.append(f"{plural(len(runs), 'finished run')} in `{SCORES}`"
+             + (f"; {plural(len(unfinished), 'run')} unfinished (not counted)" if unfinished else "") + ".")
     if sweep.get("budgets"):
         b = sweep["budgets"]
         s.append(f"The preset's budgets (env steps): single-task {b['single']}; source stage {b['source']}; "
@@ -314,8 +314,8 @@ def report(folder, resamples: int = 10_000, reference: Optional[Path] = None,
         name = folder.name or st.folder.name
         has_runs = (folder / rundir.RUNS_DIR).exists() or any(folder.rglob(rundir.CONFIG))
         if not has_runs and not ((folder / SCORES).is_file() and (folder / CURVES).is_file()):
-            raise ConfigError(f"{folder} holds no finished runs and no {SCORES}/{CURVES}: nothing to report "
-                              f"(0 unfinished runs)")  # before a copy of a folder that is not a report's
+            raise ConfigError(f"{folder} holds no run folders and no {SCORES}/{CURVES}: nothing to report "
+                              f"(a sweep's --out, a results folder or one run's folder)")  # before any copy
         if merge is not None and has_runs:
             raise ConfigError(f"{folder} holds run folders: merge into a results folder built from scores alone")
         out = st.begin(whole=not has_runs, read=(SCORES, CURVES))
@@ -324,6 +324,18 @@ def report(folder, resamples: int = 10_000, reference: Optional[Path] = None,
         names = _build(src, out, name, resamples, reference, merged=merge is not None and merged_before is None)
         changed = st.commit(names)
         return Outcome([folder / n for n in names], changed, st.notes, merged_before)
+
+
+def nothing_to_report(src: Path, unfinished: Sequence[str]) -> str:
+    """The one line of a folder whose runs are all unfinished or of no sweep (finished, without cell.json: train's
+    own folders), counted apart."""
+    loose = [u for u in unfinished if rundir.is_done(src / u)]
+    parts = [plural(len(unfinished) - len(loose), "unfinished run")] if len(unfinished) > len(loose) else []
+    if loose:
+        parts.append(f"{plural(len(loose), 'finished run')} of no sweep, without {rundir.CELL}: "
+                     f"`report {src / loose[0]}` draws one run's curves")
+    return f"{src} holds no finished runs of a sweep and no {SCORES}/{CURVES}: nothing to report " \
+           f"({'; '.join(parts) or 'no run folders'})"
 
 
 def _build(src: Path, out: Path, name: str, resamples: int, reference: Optional[Path],
@@ -348,8 +360,7 @@ def _build(src: Path, out: Path, name: str, resamples: int, reference: Optional[
         atomic_write_text(out / CURVES, csv_text(curve_rows(runs), CURVE_COLUMNS))
         written += [n for n in (SCORES, CURVES) if n not in written]
     elif old_scores is None or not have_curves:
-        raise ConfigError(f"{src} holds no finished runs and no {SCORES}/{CURVES}: nothing to report "
-                          f"({len(unfinished)} unfinished runs)")
+        raise ConfigError(nothing_to_report(src, unfinished))
     # everything below reads the two files back, so a rebuild without run folders is byte-identical
     scores, curves = _read_unique(src, out, written)
     sweep = rundir.read_sweep(src)
@@ -415,6 +426,12 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     p.add_argument("--readme-table", action="store_true",
                    help="only print the README's results table (the paper's claims) from FOLDER/claims.csv")
     a = p.parse_args(argv)
+    if run_curves.is_run_folder(Path(a.folder)) and not (a.readme_table or a.merge or a.reference):
+        need = missing_package("matplotlib", "report draws its figures with")
+        if need:
+            print(f"error: {need}", file=sys.stderr)
+            return 2
+        return run_curves.main(Path(a.folder))  # one run: its curves and a summary
     if a.readme_table:
         if not (Path(a.folder) / "claims.csv").is_file():
             print(f"error: {a.folder} holds no claims.csv", file=sys.stderr)
