@@ -10,15 +10,20 @@ evaluation); ``sync_policy_json`` adds what the policy file itself carries: its 
 action size, controller, episode rules) and the run's training settings (the ``RunConfig`` it was trained with).
 
     python -m maniskill_dualher.cards [results/policies]            # write policy.json's two entries and the cards
-    python -m maniskill_dualher.cards [results/policies] --check    # exit 1 if a card or entry is not up to date
-    python -m maniskill_dualher.cards export RUN [--policy best|final] [--root results/policies] [--episodes 100]
+    python -m maniskill_dualher.cards [results/policies] --check    # say what it checked; exit 1 if one is stale
+    python -m maniskill_dualher.cards export RUN [--policy best|final] [--root DIR] [--episodes 100] [--force]
+
+Every card opens with YAML front matter a model hub indexes (``front_matter``: library, licence, tags, the env id,
+the held-out success rate with its Wilson interval and episodes in a ``model-index``).
 
 ``export`` makes such a folder from a finished run folder (``export_run``): its ``policy_best.pt`` (a single-task
 run's default) or ``policy.pt`` (a transfer chain's adaptation stage's default: its final state, the rule the
 shipped chain policies follow), a ``policy.json`` read from the run's own files (``config.json``,
 ``provenance.json``, ``metrics.csv``, ``stage.json``, ``cell.json``, the sweep's ``sweep.json``), the held-out
-evaluation run there, and the card. It refuses to replace a folder that exists, and writes the new one staged and
-renamed, so a kill leaves no half folder.
+evaluation run there, and the card. It writes into ``policies/`` beside the run unless ``--root`` names another
+folder; into the committed ``results/policies`` only when named, and only a policy whose held-out success reaches
+the task's committed policy's of its kind (``committed_bar``) unless ``--force``. It refuses to replace a folder
+that exists, and writes the new one staged and renamed, so a kill leaves no half folder.
 """
 from __future__ import annotations
 
@@ -26,9 +31,9 @@ import json
 import os
 import sys
 from pathlib import Path
-from typing import Dict, List, Optional, Sequence
+from typing import Dict, List, Optional, Sequence, Tuple
 
-from .fileio import atomic_write_text
+from .fileio import atomic_write_text, plural
 
 POLICIES = Path(__file__).resolve().parents[1] / "results" / "policies"
 INTERFACE, SETTINGS = "interface", "training_settings"
@@ -147,8 +152,46 @@ def _transfer_seeds(t: dict, cfg: dict) -> List[str]:
             "`results/reference/scores.csv` may differ from this run's."]
 
 
+def front_matter(doc: dict) -> dict:
+    """The card's YAML front matter, as a model hub indexes it (Hugging Face's model card metadata): library,
+    licence, tags, the env id (the task), and a ``model-index`` whose metric is the held-out success rate with
+    its 95% Wilson interval, episodes, successes and reset seeds (``args``)."""
+    task, method, h, t = doc["task"], doc["method"], doc["held_out_evaluation"], doc.get(TRANSFER)
+    itf = doc.get(INTERFACE, {})
+    tags = ["reinforcement-learning", "deep-reinforcement-learning", "robotics", "maniskill3", "pytorch",
+            "soft-actor-critic", task, method]
+    if method != "sac":
+        tags[-1:-1] = ["hindsight-experience-replay", "prioritized-experience-replay"]
+    if t:
+        tags.append("transfer-learning")
+    name = f"{method} on {task}" + (f" after {' -> '.join(t['chain'][:-1])}" if t else "")
+    return {
+        "library_name": "maniskill_dualher",
+        "license": "mit",
+        "pipeline_tag": "reinforcement-learning",
+        "tags": tags,
+        "env_id": task,
+        "task": task,
+        "model-index": [{"name": name, "results": [{
+            "task": {"type": "reinforcement-learning", "name": "reinforcement-learning"},
+            "dataset": {"type": task, "name": f"{task} (ManiSkill3, {itf.get('control_mode', 'state')})",
+                        "split": f"held-out reset seeds {h['seeds']}"},
+            "metrics": [{
+                "type": "success_rate", "name": "held-out success rate", "value": float(h["success_rate"]),
+                "args": {"episodes": int(h["episodes"]), "successes": int(h["successes"]),
+                         "ci95_wilson": [round(float(x), 4) for x in h["success_ci95_wilson"]],
+                         "reset_seeds": h["seeds"], "deterministic": True}}]}]}],
+    }
+
+
+def front_matter_text(doc: dict) -> str:
+    import yaml
+    return "---\n" + yaml.safe_dump(front_matter(doc), sort_keys=False, default_flow_style=False, width=1000) \
+        + "---\n"
+
+
 def card_text(doc: dict) -> str:
-    """A model card from a policy.json (after ``sync_policy_json``)."""
+    """A model card from a policy.json (after ``sync_policy_json``): YAML front matter, then the card."""
     task, method = doc["task"], doc["method"]
     itf, cfg, h = doc[INTERFACE], doc[SETTINGS], doc["held_out_evaluation"]
     slots = itf.get("observation_slots")
@@ -159,6 +202,7 @@ def card_text(doc: dict) -> str:
     before = " -> ".join(t["chain"][:-1]) if t else ""
     n_eval = cfg.get("eval_episodes", 10)
     lines = [
+        front_matter_text(doc),
         f"# Model card: {_method_display(method)} on {task}" + (f", adapted after {before}" if t else ""),
         "",
         "Generated from this folder's `policy.json` by `python -m maniskill_dualher.cards` (do not edit by hand).",
@@ -341,15 +385,47 @@ def export_doc(run: Path, which: Optional[str] = None) -> dict:
     return doc
 
 
-def export_run(run: Path, root: Path = POLICIES, which: Optional[str] = None, episodes: int = 100) -> Path:
-    """``results/policies/<task>/<folder>/`` from finished run folder ``run``: policy.pt, policy.json (with the
-    held-out evaluation of ``episodes`` episodes made here) and the card. Staged beside the target and renamed
-    into place; an existing target is refused (ValueError)."""
+EXPORTS = "policies"  # cards export's default root: a folder of that name beside the run
+
+
+def default_root(run: Path) -> Path:
+    """Where ``cards export RUN`` writes without --root: ``policies/`` beside the run folder (never the committed
+    results/policies, which must be named)."""
+    return Path(run).resolve().parent / EXPORTS
+
+
+def in_committed(root: Path) -> bool:
+    """``root`` is the committed results/policies (or a folder inside it)."""
+    r, c = Path(root).resolve(), POLICIES.resolve()
+    return r == c or c in r.parents
+
+
+def committed_bar(task: str, transfer: bool, root: Path = POLICIES) -> Optional[Tuple[float, Path]]:
+    """The bar a policy exported into results/policies must reach: the best held-out success of the task's
+    committed policies of its kind (single-task, or adapted after transfer), with that folder; None if none."""
+    best = None
+    for folder in policy_folders(root):
+        doc = json.loads((folder / "policy.json").read_text())
+        if doc["task"] != task or (TRANSFER in doc) != transfer or "held_out_evaluation" not in doc:
+            continue
+        rate = float(doc["held_out_evaluation"]["success_rate"])
+        if best is None or rate > best[0]:
+            best = (rate, folder)
+    return best
+
+
+def export_run(run: Path, root: Optional[Path] = None, which: Optional[str] = None, episodes: int = 100,
+               force: bool = False) -> Path:
+    """``<root>/<task>/<folder>/`` from finished run folder ``run`` (root: ``default_root``, beside the run):
+    policy.pt, policy.json (with the held-out evaluation of ``episodes`` episodes made here) and the card. Staged
+    beside the target and renamed into place; an existing target is refused (ValueError). Into the committed
+    results/policies only a policy whose held-out success reaches the bar (``committed_bar``), unless ``force``."""
     import shutil
     import tempfile
     import time
     from .evaluate import evaluate_policy, seed_set
     doc = export_doc(run, which)
+    root = default_root(run) if root is None else Path(root)
     target = Path(root) / doc["task"] / folder_name(doc)
     if target.exists():
         raise ValueError(f"{target} exists: export refuses to replace a policy folder (remove it first)")
@@ -369,6 +445,12 @@ def export_run(run: Path, root: Path = POLICIES, which: Optional[str] = None, ep
             "seeds": f"{res['seed_first']}..{res['seed_last']}", "episodes": res["episodes"], "successes": res["successes"],
             "success_rate": res["success_rate"], "success_ci95_wilson": list(res["success_ci"]),
             "mean_episode_length": res["mean_episode_length"], "wall_s": round(time.perf_counter() - t0, 1)}
+        bar = committed_bar(doc["task"], TRANSFER in doc) if in_committed(root) else None
+        if bar is not None and res["success_rate"] < bar[0] and not force:
+            raise ValueError(f"held-out success {res['success_rate']:.2f} ({res['successes']}/{res['episodes']}) is "
+                             f"below the bar for {_shown(root)}: {bar[0]:.2f}, the held-out success of "
+                             f"{_shown(bar[1])}; nothing written (--force commits it anyway, or export elsewhere "
+                             f"with --root)")
         atomic_write_text(stage / "policy.json", json.dumps(doc, indent=2) + "\n")
         sync_policy_json(stage)
         atomic_write_text(stage / "README.md", card_text(json.loads((stage / "policy.json").read_text())))
@@ -390,14 +472,18 @@ def export_main(argv: Sequence[str]) -> int:
     p.add_argument("run", help="a finished run folder (config.json, done.json, metrics.csv, its policy file)")
     p.add_argument("--policy", choices=("best", "final"), default=None,
                    help="policy_best.pt or policy.pt (default: best for a single-task run, final for a transfer stage)")
-    p.add_argument("--root", default=str(POLICIES), help="where the folder goes (default results/policies)")
+    p.add_argument("--root", help=f"where the <task>/<folder> goes (default: {EXPORTS}/ beside the run folder); "
+                                  "the committed results/policies only when named here, and then only a policy whose "
+                                  "held-out success reaches the task's committed policy's of its kind (else --force)")
+    p.add_argument("--force", action="store_true",
+                   help="with --root results/policies: commit a policy below the bar")
     p.add_argument("--episodes", type=int, default=100, help="held-out evaluation episodes (default 100)")
     a = p.parse_args(argv)
     if a.episodes < 1:
-        print(f"--episodes={a.episodes} must be >= 1", file=sys.stderr)
+        print(f"error: --episodes={a.episodes} must be >= 1", file=sys.stderr)
         return 2
     try:
-        out = export_run(Path(a.run), Path(a.root), a.policy, a.episodes)
+        out = export_run(Path(a.run), Path(a.root) if a.root else None, a.policy, a.episodes, a.force)
     except ValueError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
@@ -408,16 +494,33 @@ def export_main(argv: Sequence[str]) -> int:
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
     import argparse
+    from .cmdline import OneLineParser
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv[:1] == ["export"]:
         return export_main(argv[1:])
-    p = argparse.ArgumentParser(prog="python -m maniskill_dualher.cards",
-                                description="Write each committed policy's model card (README.md) from its policy.json.")
-    p.add_argument("root", nargs="?", default=str(POLICIES), help="results/policies (default)")
-    p.add_argument("--check", action="store_true", help="write nothing; exit 1 if a card is not up to date")
+    p = OneLineParser(
+        prog="python -m maniskill_dualher.cards", formatter_class=argparse.RawDescriptionHelpFormatter,
+        usage="python -m maniskill_dualher.cards [root] [--check]\n"
+              "       python -m maniskill_dualher.cards export RUN [--root DIR] [--policy best|final] [--episodes N] "
+              "[--force]",
+        description="Write each committed policy's model card (README.md, YAML front matter first) and policy.json's "
+                    "interface and training settings from its policy.json and policy.pt.",
+        epilog="subcommands:\n"
+               "  export RUN    a finished run's policy as a <task>/<folder> with policy.json, a held-out evaluation\n"
+               f"                and its card (default: {EXPORTS}/ beside RUN; --root results/policies commits it)\n"
+               "                (python -m maniskill_dualher.cards export --help)\n\n"
+               "examples:\n"
+               "  python -m maniskill_dualher.cards                 # rewrite results/policies' cards\n"
+               "  python -m maniskill_dualher.cards --check         # exit 1 if one is not up to date\n"
+               "  python -m maniskill_dualher.cards export runs/reach --episodes 20")
+    p.add_argument("root", nargs="?", default=str(POLICIES), help="a folder of <task>/<folder>/policy.json "
+                                                                  "(default: results/policies)")
+    p.add_argument("--check", action="store_true", help="write nothing; say what was checked; exit 1 if a card or "
+                                                        "policy.json is not up to date")
     a = p.parse_args(argv)
     stale = []
-    for folder in policy_folders(Path(a.root)):
+    folders = policy_folders(Path(a.root))
+    for folder in folders:
         if sync_policy_json(folder, write=not a.check):
             stale.append(folder / "policy.json")
         doc = json.loads((folder / "policy.json").read_text())
@@ -427,7 +530,14 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             if not a.check:
                 atomic_write_text(card, card_text(doc))
     for s in stale:
-        print(("not up to date: " if a.check else "wrote ") + str(s))
+        print(("not up to date: " if a.check else "wrote ") + _shown(s))
+    what = (f"{plural(len(folders), 'policy folder')} under {_shown(Path(a.root))}: each policy.json's {INTERFACE} and {SETTINGS} "
+            f"against its policy.pt, each README.md (front matter and card) against policy.json")
+    if a.check:
+        print(f"checked {what}: " + (f"{plural(len(stale), 'file')} not up to date (python -m "
+                                     f"maniskill_dualher.cards rewrites them)" if stale else "all up to date"))
+    else:
+        print(f"{plural(len(stale), 'file')} written; {what}" if stale else f"up to date: {what}")
     return 1 if a.check and stale else 0
 
 

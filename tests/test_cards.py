@@ -162,3 +162,85 @@ def test_export_refuses_to_replace_a_folder_and_bad_input(chain_sweep, tmp_path,
     assert not (tmp_path / "other").exists()
     assert [p.name for p in (tmp_path / "ReachTarget-v1").iterdir()] == ["dual_buffer"]  # no staging left
 
+
+
+# --------------------------------------------------------------------------- issue 51: front matter, where exports go
+def _front_matter(card: str) -> dict:
+    """The card's YAML front matter as a hub reads it: huggingface_hub's ModelCard where importable (its
+    metadata and eval results), else yaml.safe_load of the block between the first two '---' lines."""
+    assert card.startswith("---\n")
+    try:
+        from huggingface_hub import ModelCard
+    except ImportError:
+        import yaml
+        return yaml.safe_load(card.split("---\n")[1])
+    data = ModelCard(card).data
+    (res,) = data.eval_results
+    meta = data.to_dict()
+    meta["_eval"] = {"task": res.task_type, "env": res.dataset_type, "metric": res.metric_type,
+                     "value": res.metric_value, "args": res.metric_args}
+    return meta
+
+
+@pytest.mark.parametrize("folder", FOLDERS, ids=lambda p: f"{p.parent.name}/{p.name}")
+def test_each_card_opens_with_front_matter_a_hub_indexes(folder):
+    doc = json.loads((folder / "policy.json").read_text())
+    meta = _front_matter((folder / "README.md").read_text())
+    h = doc["held_out_evaluation"]
+    assert meta["library_name"] == "maniskill_dualher" and meta["license"] == "mit"
+    assert meta["env_id"] == meta["task"] == doc["task"] and doc["task"] in meta["tags"]
+    assert {"reinforcement-learning", "robotics", "maniskill3", doc["method"]} <= set(meta["tags"])
+    (result,) = meta["model-index"][0]["results"]
+    (metric,) = result["metrics"]
+    assert result["task"]["type"] == "reinforcement-learning" and result["dataset"]["type"] == doc["task"]
+    assert metric["type"] == "success_rate" and metric["value"] == pytest.approx(h["success_rate"])
+    args = metric["args"]
+    assert (args["episodes"], args["successes"]) == (h["episodes"], h["successes"])
+    assert args["ci95_wilson"] == pytest.approx(h["success_ci95_wilson"], abs=5e-5)
+    assert args["reset_seeds"] == h["seeds"]
+    if "_eval" in meta:  # huggingface_hub read the same numbers out of the model-index
+        assert meta["_eval"]["env"] == doc["task"] and meta["_eval"]["value"] == pytest.approx(h["success_rate"])
+        assert meta["_eval"]["args"]["episodes"] == h["episodes"]
+
+
+def test_cards_help_lists_export_and_check_says_what_it_checked(capsys):
+    with pytest.raises(SystemExit) as e:
+        cards.main(["--help"])
+    assert e.value.code == 0
+    out = capsys.readouterr().out
+    assert "export RUN" in out and "subcommands" in out
+    assert cards.main(["--check"]) == 0
+    out = capsys.readouterr().out.strip().splitlines()
+    assert out == [f"checked {len(FOLDERS)} policy folders under results/policies: each policy.json's interface and "
+                   "training_settings against its policy.pt, each README.md (front matter and card) against "
+                   "policy.json: all up to date"]
+
+
+def test_export_goes_beside_the_run_by_default(chain_sweep):
+    run = chain_sweep[0]
+    assert _export(run, "--episodes", 1) == 0
+    folder = run.parent / "policies" / "ReachTarget-v1" / "dual_buffer"
+    assert sorted(p.name for p in folder.iterdir()) == ["README.md", "policy.json", "policy.pt"]
+    assert _front_matter((folder / "README.md").read_text())["env_id"] == "ReachTarget-v1"
+
+
+def test_export_into_the_committed_folder_needs_the_bar_or_force(chain_sweep, tmp_path, monkeypatch, capsys):
+    """Into results/policies (here a stand-in) only a policy whose held-out success reaches the task's committed
+    policy's of its kind; below it: one line naming both, nothing written, unless --force."""
+    committed = tmp_path / "policies"
+    src = ROOT / "ReachTarget-v1" / "sac_her_per"
+    (committed / "ReachTarget-v1" / "sac_her_per").mkdir(parents=True)
+    doc = json.loads((src / "policy.json").read_text())
+    doc["held_out_evaluation"] = dict(doc["held_out_evaluation"], success_rate=1.0, successes=100)
+    (committed / "ReachTarget-v1" / "sac_her_per" / "policy.json").write_text(json.dumps(doc))
+    monkeypatch.setattr(cards, "POLICIES", committed)
+    run = chain_sweep[0]  # a smoke run: it reaches nothing in 150 env steps
+    assert cards.committed_bar("ReachTarget-v1", False, committed)[0] == 1.0
+    assert cards.committed_bar("ReachTarget-v1", True, committed) is None  # no adapted policy of that task
+    capsys.readouterr()
+    assert _export(run, "--root", committed, "--episodes", 1) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "below the bar" in err[0] and "--force" in err[0] and "sac_her_per" in err[0]
+    assert sorted(p.name for p in (committed / "ReachTarget-v1").iterdir()) == ["sac_her_per"]  # no staging left
+    assert _export(run, "--root", committed, "--episodes", 1, "--force") == 0
+    assert (committed / "ReachTarget-v1" / "dual_buffer" / "README.md").is_file()
