@@ -2,9 +2,13 @@
 read it. A new method is one file (a ``ReplayMethod``, see ``replay/method.py``) plus one line below.
 
 A :class:`MethodSpec` says what the rest of the project needs to know without importing the method's
-code (the report runs without torch): where its class lives, its legend label and colour, whether it
-takes part in the transfer experiment (and its from-scratch control), and whether its R/E sampling
-ratio is a setting that the ratio study varies and that names its run folders and table rows.
+code (the report runs without torch): where its class lives, its legend label, colour, line style and
+marker, whether it is the paper's method, whether it takes part in the transfer experiment (and its
+from-scratch control), whether its R/E sampling ratio is a setting that the ratio study varies and that names
+its run folders and table rows, and whose prior it can adapt from (``adopts``: an arm with a ``prior_method``
+plans only that method and those that adopt it, ``registry.Experiment.arm_methods``). Each entry owns its facts:
+nothing reads a method's position in the registry but the order of legends and tables, so a line appended
+here restyles no other method.
 """
 from __future__ import annotations
 
@@ -26,6 +30,9 @@ class MethodSpec:
     transfer: bool = True     # runs the transfer chain (paper Fig. 5 / Table 5) and the scratch control
     sampling_ratio: bool = False  # replay.ratio matters: the ratio study varies it; it tags folders and rows
     adopts: Tuple[str, ...] = ()  # other methods whose prior (networks and replay) it can adapt from
+    linestyle: str = ":"      # matplotlib line style, the same in every figure (tells two methods of one arm apart)
+    marker: str = "D"         # matplotlib marker, the same in every figure
+    paper: bool = False       # the paper's method: listed first in the aggregate figure (P(it > each other))
 
     def tag(self, cfg: RunConfig) -> str:
         """The settings that tell this method's runs apart in folder names and table rows ('' if none)."""
@@ -37,10 +44,12 @@ class MethodSpec:
 
 
 METHOD_SPECS: Dict[str, MethodSpec] = {s.name: s for s in (
-    MethodSpec("sac", "maniskill_dualher.baselines.sac:SACReplay", "SAC (uniform replay)", "tab:gray", transfer=False),
-    MethodSpec("sac_her_per", "maniskill_dualher.baselines.sac_her_per:SACHerPerReplay", "SAC+HER+PER", "tab:blue"),
+    MethodSpec("sac", "maniskill_dualher.baselines.sac:SACReplay", "SAC (uniform replay)", "tab:gray", transfer=False,
+               linestyle="-.", marker="^"),
+    MethodSpec("sac_her_per", "maniskill_dualher.baselines.sac_her_per:SACHerPerReplay", "SAC+HER+PER", "tab:blue",
+               linestyle="--", marker="s"),
     MethodSpec("dual_buffer", "maniskill_dualher.dual_buffer:DualBufferReplay", "dual buffer", "tab:orange",
-               sampling_ratio=True, adopts=("sac_her_per",)),
+               sampling_ratio=True, adopts=("sac_her_per",), linestyle="-", marker="o", paper=True),
 )}
 
 

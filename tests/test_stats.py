@@ -166,14 +166,28 @@ def test_aggregates_across_tasks_rliable_style():
     x = np.array([0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 100.0])
     assert st.iqm(x) == pytest.approx(np.mean([2.0, 3.0, 4.0, 5.0]))
     m = np.array([[0.1, 0.5], [0.2, 0.7], [0.3, 0.9], [0.4, 0.6]])   # 4 seeds x 2 tasks
-    pt, lo, hi = st.aggregate_ci(m, lambda b: b.mean(axis=1))
-    assert pt == pytest.approx(m.mean()) and lo < pt < hi
-    assert st.aggregate_ci(m, lambda b: b.mean(axis=1)) == (pt, lo, hi)          # seeded
+    boots = st.stratified_bootstrap({"m": m}, lambda b: b.mean(), 2_000)["m"]
+    lo, hi = np.quantile(boots, [0.025, 0.975])
+    assert lo < m.mean() < hi
+    assert np.array_equal(st.stratified_bootstrap({"m": m}, lambda b: b.mean(), 2_000)["m"], boots)  # seeded
     # stratified: a resample never mixes tasks, so a constant task keeps its value in every resample
     flat = np.array([[0.5, 1.0], [0.5, 2.0], [0.5, 3.0]])
-    _, lo2, hi2 = st.aggregate_ci(flat, lambda b: b.reshape(len(b), -1, 2)[:, :, 0].mean(axis=1))
-    assert lo2 == hi2 == 0.5
+    assert set(st.stratified_bootstrap({"f": flat}, lambda b: b[:, 0].mean(), 500)["f"]) == {0.5}
     assert list(st.performance_profile(m, np.array([0.0, 0.45, 0.95]))) == [1.0, 0.5, 0.0]
+
+
+def test_probability_of_improvement_interval_resamples_seeds_within_tasks():
+    """fig7's P(a > b): the mean over tasks of the per-task probability, its stratified-bootstrap interval drawn
+    from the generator it is given (one per figure, shared by its pairs)."""
+    import numpy as np
+    from maniskill_dualher.analysis import stats as st
+    a = np.array([[0.9, 0.6], [0.8, 0.7], [0.7, 0.9]])
+    b = np.array([[0.1, 0.5], [0.2, 0.7], [0.3, 0.4]])
+    p, lo, hi = st.prob_improvement_ci(a, b, np.random.default_rng(3), 500)
+    assert p == pytest.approx(np.mean([st.prob_improvement(a[:, t], b[:, t]) for t in range(2)]))
+    assert 0 <= lo <= p <= hi <= 1
+    assert st.prob_improvement_ci(a, b, np.random.default_rng(3), 500) == (p, lo, hi)   # seeded
+    assert st.prob_improvement_ci(a[:, :1], b[:, :1], np.random.default_rng(0), 200) == (1.0, 1.0, 1.0)
 
 
 def test_paired_interval_is_the_one_sample_interval_of_the_per_seed_differences():

@@ -43,8 +43,9 @@ def _table():
 
 def cell_configs(sweep: dict, scores: Sequence[dict]) -> List[Tuple[RunConfig, dict]]:
     """(config, cell) of every (experiment, arm, method, task, stage) in ``scores``, built by the grid from the
-    sweep's definition (its budgets and settings; a merged sweep has the same, ``report.MERGE_SAME``). Arms
-    the registry no longer has are left out."""
+    sweep's definition (its budgets and settings; a merged sweep has the same, ``report.MERGE_SAME``), for the
+    methods and tasks ``scores`` holds: a method or task added to the registry since is not planned. Arms the
+    registry no longer has are left out."""
     have = {(r["experiment"], r["arm"], r["method"], r["task"], str(r["stage"])) for r in scores}
     arms = {(e, a) for e, a, *_ in have}
     selected = [f"{e.name}:{'+'.join(a.name for a in e.arms if (e.name, a.name) in arms)}"
@@ -52,7 +53,8 @@ def cell_configs(sweep: dict, scores: Sequence[dict]) -> List[Tuple[RunConfig, d
     if not selected:
         return []
     d = {k: v for k, v in sweep.items() if k != "arm_seeds"}
-    d.update(experiments=selected, tasks=list(TASKS), methods=list(METHOD_SPECS), seeds=[0], chain_seeds=[0])
+    d.update(experiments=selected, tasks=[t for t in TASKS if any(h[3] == t for h in have)],
+             methods=[m for m in METHOD_SPECS if any(h[2] == m for h in have)], seeds=[0], chain_seeds=[0])
     return [(n.cfg, c) for n in build_grid(d) for c in n.cells
             if (c["experiment"], c["arm"], c["method"], c["task"], str(c["stage"])) in have]
 

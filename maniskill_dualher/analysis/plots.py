@@ -9,8 +9,8 @@
 * Colours: one per arm in every figure. A method's paper treatment (an arm whose settings change nothing,
   in a chain or single-task experiment) is drawn in the method's registry colour; every other arm gets a
   fixed colour from ``ARM_PALETTE`` in registry order, keyed on its display name (``registry.colour_key``: an
-  adaptation arm and its from-scratch twin share one). Line style tells the methods apart
-  (``METHOD_STYLES``), so one arm of two methods shares its colour.
+  adaptation arm and its from-scratch twin share one). Line style and marker tell the methods apart (each
+  method's own, ``MethodSpec.linestyle`` / ``marker``), so one arm of two methods shares its colour.
 * Size: no figure is taller than a printed page (``tests/test_report.py``); the ablations are one figure per
   experiment (``registry.fig6_file``), not one tall figure.
 * Only what differs: success is shown, the evaluation return is not (sparse reward and episodes that end on
@@ -46,8 +46,6 @@ ARM_PALETTE = ("#1b9e77", "#e7298a", "#9467bd", "#8c564b", "#e377c2", "#2ca02c",
                "#bcbd22", "#006400", "#b8860b", "#8b0000", "#191970", "#6b6ecf", "#ad494a", "#31a354",
                "#d6616b", "#8ca252", "#7b4173", "#a55194", "#3182bd", "#637939", "#e6550d", "#5254a3",
                "#b5cf6b", "#cedb9c", "#e7969c", "#de9ed6")
-METHOD_STYLES = ("-", "--", "-.", ":")   # from the last registered method (the paper's) backwards: it is solid
-METHOD_MARKERS = ("o", "s", "^", "D")
 
 
 # --------------------------------------------------------------------------- names and colours (registry)
@@ -93,10 +91,17 @@ def color_of(method: str, arm: str = PAPER_ARM, experiment: Optional[str] = None
 
 
 def style_of(method: str) -> Tuple[str, str]:
-    """(line style, marker) of a method: tells two methods of one arm apart."""
-    names = list(METHOD_SPECS)[::-1]
-    i = names.index(method) if method in names else len(names)
-    return METHOD_STYLES[i % len(METHOD_STYLES)], METHOD_MARKERS[i % len(METHOD_MARKERS)]
+    """(line style, marker) of a method, its registry entry's (``MethodSpec.linestyle``, ``marker``): tells two
+    methods of one arm apart."""
+    spec = METHOD_SPECS.get(method)
+    return (spec.linestyle, spec.marker) if spec is not None else (":", "D")
+
+
+def paper_first(methods: Sequence[str]) -> List[str]:
+    """``methods`` with the paper's (``MethodSpec.paper``) first, then the others in reverse registry order."""
+    names = list(METHOD_SPECS)
+    rank = {m: (not METHOD_SPECS[m].paper, -names.index(m)) for m in methods if m in METHOD_SPECS}
+    return sorted(methods, key=lambda m: rank.get(m, (True, 1)))
 
 
 # --------------------------------------------------------------------------- data
@@ -366,7 +371,7 @@ def plot_ablation(curves, path: Path, experiment: str) -> bool:
 
 # --------------------------------------------------------------------------- Fig. 7 (rliable style)
 def _aggregate_row(axes, mats: Dict[str, np.ndarray], tasks: List[str], metric_name: str, rate: bool) -> None:
-    names = list(mats)[::-1]  # the last registered method (the paper's) first: P(it > each other)
+    names = paper_first(list(mats))  # the paper's method first: P(it > each other)
     q = (1 - LEVEL) / 2
     # (1) IQM and mean with stratified-bootstrap CIs
     for k, (label, fn) in enumerate((("IQM", lambda x: float(stats.iqm(x))), ("mean", lambda x: float(x.mean())))):
@@ -399,15 +404,7 @@ def _aggregate_row(axes, mats: Dict[str, np.ndarray], tasks: List[str], metric_n
     pairs = [(a, b) for i, a in enumerate(names) for b in names[i + 1:]]
     rng = np.random.default_rng(3)
     for j, (a, b) in enumerate(pairs):
-        xa, xb = mats[a], mats[b]
-        p = float(np.mean([stats.prob_improvement(xa[:, t], xb[:, t]) for t in range(len(tasks))]))
-        bs = []
-        for _ in range(RESAMPLES // 4):
-            ia = rng.integers(0, xa.shape[0], xa.shape)
-            ib = rng.integers(0, xb.shape[0], xb.shape)
-            ra, rb = np.take_along_axis(xa, ia, 0), np.take_along_axis(xb, ib, 0)
-            bs.append(np.mean([stats.prob_improvement(ra[:, t], rb[:, t]) for t in range(len(tasks))]))
-        lo, hi = np.quantile(bs, [q, 1 - q])
+        p, lo, hi = stats.prob_improvement_ci(mats[a], mats[b], rng, RESAMPLES // 4, LEVEL)
         axes[2].errorbar(p, j, xerr=[[p - lo], [hi - p]], fmt="o", color=color_of(a), capsize=4, ms=6)
     axes[2].axvline(0.5, color="black", linestyle=":", lw=1)
     axes[2].set_yticks(range(len(pairs)), [f"P({method_label(a)}\n> {method_label(b)})" for a, b in pairs])

@@ -628,16 +628,22 @@ def iqm(x: np.ndarray, axis=None) -> np.ndarray:
     return trim_mean(x, 0.25, axis=axis)
 
 
-def aggregate_ci(scores: np.ndarray, fn, resamples: int = 2_000, seed: int = 0, level: float = 0.95):
-    """(point, low, high) of ``fn`` over a (seeds, tasks) score matrix, with rliable's stratified bootstrap:
-    seeds are resampled within each task. ``fn`` maps (resamples, seeds*tasks) to (resamples,)."""
-    rng = np.random.default_rng(seed)
-    n, t = scores.shape
-    idx = rng.integers(0, n, size=(resamples, n, t))
-    boot = np.take_along_axis(scores[None].repeat(resamples, 0), idx, axis=1).reshape(resamples, -1)
-    vals = fn(boot)
-    lo, hi = np.percentile(vals, [50 * (1 - level), 100 - 50 * (1 - level)])
-    return float(fn(scores.reshape(1, -1))[0]), float(lo), float(hi)
+def prob_improvement_ci(xa: np.ndarray, xb: np.ndarray, rng: np.random.Generator, resamples: int = 500,
+                        level: float = 0.95) -> Tuple[float, float, float]:
+    """(point, low, high): P(a > b) averaged over tasks (``prob_improvement`` per column of two (seeds, tasks)
+    matrices), with rliable's stratified-bootstrap interval: both sides' seeds resampled within each task,
+    drawn from ``rng`` (the figure shares one generator across its pairs, in their order)."""
+    tasks = range(xa.shape[1])
+    p = float(np.mean([prob_improvement(xa[:, t], xb[:, t]) for t in tasks]))
+    bs = []
+    for _ in range(resamples):
+        ia = rng.integers(0, xa.shape[0], xa.shape)
+        ib = rng.integers(0, xb.shape[0], xb.shape)
+        ra, rb = np.take_along_axis(xa, ia, 0), np.take_along_axis(xb, ib, 0)
+        bs.append(np.mean([prob_improvement(ra[:, t], rb[:, t]) for t in tasks]))
+    q = (1 - level) / 2
+    lo, hi = np.quantile(bs, [q, 1 - q])
+    return p, float(lo), float(hi)
 
 
 def performance_profile(scores: np.ndarray, taus: np.ndarray) -> np.ndarray:

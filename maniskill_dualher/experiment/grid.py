@@ -71,7 +71,7 @@ def _seed_tasks(d: dict, exp: Experiment) -> List[str]:
 
 def _arm_cells(d: dict, exp: Experiment, arm: Arm) -> List[Tuple[str, str]]:
     """(method, task) pairs an arm's seeds are decided for."""
-    methods = [m for m in exp.method_names() if m in d["methods"] and (arm.methods is None or m in arm.methods)]
+    methods = [m for m in exp.arm_methods(arm) if m in d["methods"]]
     return [(m, t) for m in methods for t in _seed_tasks(d, exp)]
 
 
@@ -192,14 +192,11 @@ def build_grid(d: dict) -> List[Node]:
     for item in d["experiments"]:
         exp_name, _, only = item.partition(":")   # "e_share:paper+e_off": some of its arms
         exp = experiment(exp_name)
-        methods = [m for m in exp.method_names() if m in d["methods"]]
         for arm in exp.arms:
             if only and arm.name not in only.split("+"):
                 continue
             settings = overrides.parse_all(arm.settings)
-            for method in methods:
-                if arm.methods is not None and method not in arm.methods:
-                    continue
+            for method in [m for m in exp.arm_methods(arm) if m in d["methods"]]:
                 per_task = {t: seeds_for(d, exp, arm, method, t) for t in _seed_tasks(d, exp)}
                 for seed in sorted(set().union(*per_task.values()), key=_seed_order(per_task)):
                     base = {"experiment": exp.name, "arm": arm.name, "method": method, "seed": seed}

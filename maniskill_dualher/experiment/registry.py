@@ -124,6 +124,15 @@ class Experiment:
             return tuple(m for m, s in METHOD_SPECS.items() if s.sampling_ratio)
         return tuple(m for m in self.methods if m in METHOD_SPECS)
 
+    def arm_methods(self, arm: Arm) -> Tuple[str, ...]:
+        """The methods one arm plans, in registry order: the experiment's (``method_names``) that the arm does not
+        leave out (``Arm.methods``); for an arm with a ``prior_method``, only that method and those whose
+        ``MethodSpec.adopts`` names it (a method can adapt only from a prior it adopts; ``protocol.validate_chain``
+        is the guard). So a method appended to the registry joins no shared-prior arm it cannot adapt in."""
+        return tuple(m for m in self.method_names() if (arm.methods is None or m in arm.methods)
+                     and (arm.prior_method is None or m == arm.prior_method
+                          or arm.prior_method in METHOD_SPECS[m].adopts))
+
     def arm(self, name: str) -> Arm:
         for a in self.arms:
             if a.name == name:

@@ -133,8 +133,9 @@ def definition_from_args(a: argparse.Namespace) -> dict:
         d["arm_seeds"] = cell_seeds(p.seeds_from, {f"{exp.name}:{arm.name}" for exp, arm in selected_arms(d)})
     for name in (x.split(":")[0] for x in d["experiments"]):
         e = EXPERIMENTS[name]
-        if not set(e.method_names()) & set(d["methods"]):
-            raise ConfigError(f"experiment {name!r} needs method {' or '.join(e.method_names())}")
+        takes = [m for m in e.method_names() if any(m in e.arm_methods(arm) for arm in e.arms)]
+        if not set(takes) & set(d["methods"]):
+            raise ConfigError(f"experiment {name!r} needs method {' or '.join(takes)}")
         if e.kind == "chain" and len(order) < 2:
             raise ConfigError(f"experiment {name!r} needs a chain of at least 2 tasks, got --task-order {a.task_order!r}")
     return d
