@@ -5,14 +5,13 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import sys
 from pathlib import Path
 
 from .cmdline import OneLineParser, did_you_mean, old_flag  # noqa: F401 (train's parser; evaluate imports it here)
 from .config import (DUAL_MODES, E_BATCHES, HER_STRATEGIES, MATMUL_PRECISIONS, OUR_TASKS, SAC_VARIANTS, SIM_BACKENDS,
                      SUCCESS_BUFFER_MODES, UPDATE_IMPLS, UPDATE_SCHEDULES, ConfigError, ReplayConfig, RunConfig,
-                     SACConfig, field_docs, format_ratio)
+                     SACConfig, config_yaml, field_docs, format_ratio, read_config_file)
 from .methods import METHOD_SPECS
 
 # --------------------------------------------------------------------------- python -m maniskill_dualher.train
@@ -88,12 +87,10 @@ def train_config(args: argparse.Namespace) -> RunConfig:
     base = RunConfig()
     if args.config:
         p = Path(args.config)
-        if not p.is_file():
-            raise ConfigError(f"config file not found: {p}")
         try:
-            base = RunConfig.from_dict(json.loads(p.read_text()))
-        except json.JSONDecodeError as e:
-            raise ConfigError(f"config file {p} is not valid JSON (line {e.lineno})") from None
+            base = RunConfig.from_dict(read_config_file(p))
+        except ConfigError as e:
+            raise ConfigError(e if str(e).startswith("config file") else f"config file {p}: {e}") from None
         except TypeError as e:
             raise ConfigError(f"config file {p}: {e}") from None
     items = []
@@ -130,6 +127,18 @@ def train_config(args: argparse.Namespace) -> RunConfig:
     return cfg
 
 
+def printed_config(args: argparse.Namespace, argv) -> str:
+    """``train ARGV`` with --print-config: the config the flags give, as the YAML file ``--config`` reads back."""
+    if args.continue_run is not None:
+        raise ConfigError(f"--print-config prints a new run's config; --continue {args.continue_run} keeps its own: "
+                          f"{Path(args.continue_run) / 'config.json'}")
+    cfg = train_config(args)
+    import shlex
+    typed = shlex.join([a for a in argv if a != "--print-config"] + ["--print-config"])
+    return config_yaml(cfg, "RunConfig for python -m maniskill_dualher.train --config FILE (maniskill_dualher/"
+                            f"config.py documents each key)\nwritten by: python -m maniskill_dualher.train {typed}")
+
+
 def continue_request(args: argparse.Namespace):
     """``--continue RUN --total-steps N`` -> (RUN, N); None without --continue. The run keeps its own config,
     so no other setting goes with it; without --continue, --out is needed."""
@@ -164,7 +173,13 @@ def train_parser() -> argparse.ArgumentParser:
                    help="carry the finished run in folder RUN on to --total-steps N (more than it has done), from "
                         "its final checkpoint, with its own config (it needs its replay: trained with "
                         "--keep-replay)")
-    p.add_argument("--config", help="JSON file with a RunConfig (flags override it)")
+    p.add_argument("--config", metavar="FILE",
+                   help="a RunConfig, or part of one, as YAML (.yaml, .yml) or JSON (flags override it); "
+                        "--print-config writes one")
+    p.add_argument("--print-config", action="store_true",
+                   help="print the config these flags give as YAML and exit (nothing trained, no --out): saved to a "
+                        "file, --config FILE gives the same config, e.g. --preset quick --task CloseBox-v1 "
+                        "--print-config > quick.yaml")
     from .experiment.presets import PRESETS  # issue 31: --preset lists its choices
     p.add_argument("--preset", choices=list(PRESETS),
                    help="start from a sweep preset's settings and this task's single-task budget (quick: settings "

@@ -329,3 +329,55 @@ def _from_dict(cls, d: Any, prefix: str):
         else:
             kwargs[k] = v
     return cls(**kwargs)
+
+
+# --------------------------------------------------------------------------- hyperparameters as files
+YAML_SUFFIXES = (".yaml", ".yml")
+
+
+def _yaml_loader():
+    """PyYAML's safe loader, with YAML 1.2's floats: ``lr: 1e-3`` is a number (YAML 1.1 reads it as a string)."""
+    import re
+    import yaml
+
+    class Loader(yaml.SafeLoader):
+        pass
+    Loader.add_implicit_resolver("tag:yaml.org,2002:float", re.compile(
+        r"^[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"), list("-+0123456789"))
+    return Loader
+
+
+def read_config_file(path) -> dict:
+    """A (nested) settings mapping from a JSON or YAML file: ``.yaml``/``.yml`` as YAML, anything else as JSON.
+    ConfigError (one line) where the file is missing, unreadable or not a mapping."""
+    from pathlib import Path
+    p = Path(path)
+    if not p.is_file():
+        raise ConfigError(f"config file not found: {p}")
+    text = p.read_text()
+    if p.suffix.lower() in YAML_SUFFIXES:
+        import yaml
+        try:
+            d = yaml.load(text, Loader=_yaml_loader())  # noqa: S506 (a safe loader)
+        except yaml.YAMLError as e:
+            mark = getattr(e, "problem_mark", None)
+            raise ConfigError(f"config file {p} is not valid YAML"
+                              + (f" (line {mark.line + 1})" if mark is not None else "")) from None
+    else:
+        try:
+            d = json.loads(text)
+        except json.JSONDecodeError as e:
+            raise ConfigError(f"config file {p} is not valid JSON (line {e.lineno}; a .yaml or .yml file is read "
+                              f"as YAML)") from None
+    if not isinstance(d, dict):
+        raise ConfigError(f"config file {p} must hold a mapping of settings, got {type(d).__name__}")
+    return d
+
+
+def config_yaml(cfg: "RunConfig", comment: str = "") -> str:
+    """``cfg`` as a YAML file (every setting, in RunConfig's order) that ``read_config_file`` and
+    ``RunConfig.from_dict`` read back to ``cfg`` exactly; ``comment``: lines put first, each as a # comment."""
+    import yaml
+    head = "".join(f"# {line}\n" if line else "#\n" for line in comment.splitlines())
+    return head + yaml.safe_dump(json.loads(json.dumps(dataclasses.asdict(cfg))), sort_keys=False,
+                                 default_flow_style=None, width=1000)

@@ -752,7 +752,7 @@ def _solver_action(solver, env: BatchEnv) -> np.ndarray:
 
 # --------------------------------------------------------------------------- python -m maniskill_dualher.train
 # (the flags and how they become a RunConfig live in cli.py)
-from .cli import (NO_PRESET_NOTE, continue_request, train_config as config_from_args,  # noqa: E402
+from .cli import (NO_PRESET_NOTE, continue_request, printed_config, train_config as config_from_args,  # noqa: E402
                   train_parser as build_parser)
 
 
@@ -774,6 +774,9 @@ def main(argv=None) -> int:
     JSON (a run found finished: and one line on stderr saying so); bad input: one line, exit code 2."""
     args = build_parser().parse_args(argv)
     try:
+        if args.print_config:
+            print(printed_config(args, sys.argv[1:] if argv is None else list(argv)), end="")
+            return 0
         again = continue_request(args)
         if again is not None:
             final = run_job(continued(*again), show_progress=not args.no_progress)

@@ -433,8 +433,8 @@ def test_run_transfer_chains_networks_and_replay(tmp_path):
     (["--set", "replay.dual_mode=both"], "dual_mode"),
     (["--set", "sac.batch_size=1.5"], "bad value for sac.batch_size"),
     (["--set", "terminate_on_success=maybe"], "bad value for terminate_on_success"),
-    (["--seeds", "-1"], "seed must be >= 0"),
-    (["--seeds=0,-2"], "seed must be >= 0"),
+    (["--seeds", "-1"], "--seeds '-1': a seed must be >= 0, got -1 ('3' is a count: seeds 0,1,2; "),
+    (["--seeds=0,-2"], "a seed must be >= 0, got -2"),
     (["--seeds", "a,b"], "--seeds"),
     (["--set", "eval_every=0"], "eval_every"),
     (["--set", "nosuch=1"], "unknown setting"),
@@ -453,9 +453,11 @@ def test_run_transfer_chains_networks_and_replay(tmp_path):
     (["--sourcesteps", "300"], "unrecognized arguments: --sourcesteps 300 (did you mean --source-steps?)"),
     (["--source-steps", "ten"], "'ten'"),
     (["--adapt-steps", "0"], "--adapt-steps must be >= 1"),
-    (["--seeds", ","], "--seeds must list distinct seeds"),
-    (["--seeds", "7,7"], "--seeds must list distinct seeds"),
-    (["--seeds", "0"], "--seeds count must be >= 1"),
+    (["--seeds", ","], "--seeds ',': no seed given ('3' is a count"),
+    (["--seeds", "7,7"], "--seeds '7,7' lists a seed twice"),
+    (["--seeds", "0"], "--seeds 0 is a count of no seeds: seed 0 alone is --seeds 0, ('3' is a count: seeds 0,1,2; "
+                       "'0,4,7' lists seeds; '7,' is seed 7 alone)"),
+    (["--chain-seeds", "0"], "--chain-seeds 0 is a count of no seeds: seed 0 alone is --chain-seeds 0, "),
 ])
 def test_bad_input_one_line_exit_2_nothing_written(tmp_path, capsys, args, expect):
     out = tmp_path / "o"
@@ -509,7 +511,7 @@ def test_help_names_presets_budgets_and_the_one_seed_list(capsys):
     assert f"one of {', '.join(PRESETS)}" in text
     assert "--source-steps N" in text and "--adapt-steps N" in text and "--steps" not in text.replace(
         "--source-steps", "").replace("--adapt-steps", "").replace("--total-steps", "")
-    assert "'7,' is seed 7 ('7' is seeds 0-6)" in text
+    assert "'7,' is seed 7 ('7' is seeds 0-6; '0' is no seeds, refused: seed 0 alone is '0,')" in text
 
 
 def test_source_steps_and_adapt_steps_budgets(tmp_path, capsys):
@@ -519,7 +521,7 @@ def test_source_steps_and_adapt_steps_budgets(tmp_path, capsys):
                       "--dry-run", "--out", str(tmp_path / "o")]) == 0
     last = capsys.readouterr().out.strip().splitlines()[-1]
     # transfer: 2 methods x (2 source stages of 300 + an adaptation of 180)
-    assert last == "6 runs; 1560 env steps to go; nothing written (--dry-run)", last
+    assert last == f"6 runs in --out {tmp_path / 'o'}; 1560 env steps to go; nothing written (--dry-run)", last
     a = sweep.make_parser().parse_args(["--source-steps", "300", "--adapt-steps", "50"])
     d = sweep.definition_from_args(a)
     assert set(d["budgets"]["source"].values()) == {300} and set(d["budgets"]["single"].values()) == {300}
@@ -584,7 +586,7 @@ def test_seeds_settings_and_dry_run(tmp_path, capsys):
     assert run_sweep(["--preset", "smoke", "--out", str(out), "--experiments", "ratios", "--seeds", "1",
                        "--dry-run"]) == 0
     lines = capsys.readouterr().out.strip().splitlines()
-    assert lines[-1] == "5 runs; 750 env steps to go; nothing written (--dry-run)"  # 2 sources, 3 adaptations
+    assert lines[-1] == f"5 runs in --out {out}; 750 env steps to go; nothing written (--dry-run)"  # 2+3 stages
     assert sum("stage2-CloseMicrowave-v1-r0.5-0.5" in ln for ln in lines) == 1
     assert not out.exists()
 
@@ -863,7 +865,8 @@ def test_a_reference_sweep_folder_with_the_older_seed_table_is_the_same_sweep(tm
     assert run_sweep(args) == 0
     rundir.write_json(out / rundir.SWEEP, dict(old, runs=d["runs"][:-1]))
     capsys.readouterr()
-    assert run_sweep(args) == 2 and "holds a different sweep" in capsys.readouterr().err
+    assert run_sweep([a for a in args if a != "--dry-run"]) == 2 and "holds a different sweep" in \
+        capsys.readouterr().err
 
 
 def test_a_new_experiment_has_no_reference_seeds_and_its_dry_run_says_how_to_ask(tmp_path, monkeypatch, capsys):
@@ -878,6 +881,44 @@ def test_a_new_experiment_has_no_reference_seeds_and_its_dry_run_says_how_to_ask
     out = capsys.readouterr().out.splitlines()
     assert ("capped: my_new/low_lr runs 0 of the preset's 16 seeds (seed table): not in results/reference "
             "(--chain-seeds 16 runs it at the preset's 16)") in out
-    assert out[-1] == "0 runs; 0 env steps to go; nothing written (--dry-run)"
+    assert out[-1] == f"0 runs in --out {tmp_path / 'o'}; 0 env steps to go; nothing written (--dry-run)"
     assert run_sweep([*base, "--chain-seeds", "16"]) == 0
-    assert capsys.readouterr().out.splitlines()[-1].startswith(f"{2 * 16 * 3} runs; ")
+    assert capsys.readouterr().out.splitlines()[-1].startswith(f"{2 * 16 * 3} runs in --out ")
+
+
+# --------------------------------------------------------------------------- issue 51: settings files, dry runs
+def test_sweep_config_file_is_settings_for_every_run(tmp_path, capsys):
+    """`sweep --config FILE` (YAML or JSON): a RunConfig's mapping or part of one, a stage's under adapt:, each a
+    --set before the command line's; the sweep's per-run keys are refused with the flag that sets them."""
+    (tmp_path / "s.yaml").write_text("sac:\n  lr: 3e-4\n  hidden: [32, 32]\nadapt:\n  sac:\n    random_steps: 0\n"
+                                     "replay: {ratio: [0.5, 0.5]}\nterminate_on_success: false\n")
+    (tmp_path / "s.json").write_text(json.dumps({"sac": {"lr": 3e-4, "hidden": [32, 32]},
+                                                 "adapt": {"sac": {"random_steps": 0}},
+                                                 "replay": {"ratio": [0.5, 0.5]}, "terminate_on_success": False}))
+    want = ["sac.lr=0.0003", "sac.hidden=32,32", "adapt.sac.random_steps=0", "replay.ratio=0.5/0.5",
+            "terminate_on_success=False"]
+    for f in ("s.yaml", "s.json"):
+        a = sweep.make_parser().parse_args(["--config", str(tmp_path / f), "--set", "sac.lr=1e-4"])
+        assert sweep.definition_from_args(a)["settings"] == want + ["sac.lr=0.0001"], f
+    (tmp_path / "seed.yaml").write_text("seed: 3\n")
+    out = tmp_path / "o"
+    assert run_sweep(["--preset", "smoke", "--config", str(tmp_path / "seed.yaml"), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "seed is the sweep's to set per run (--seeds)" in err[0] and not out.exists()
+
+
+def test_a_dry_run_reads_any_folder_and_names_its_out(tmp_path, capsys):
+    """A dry run writes nothing, so another sweep's --out is read, not refused: the dry run says what a run would
+    answer and ends with its --out; the run itself is still refused."""
+    out = tmp_path / "other"
+    rundir.write_json(out / rundir.SWEEP, {"preset": "quick", "runs": []})
+    before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    args = ["--preset", "smoke", "--experiments", "transfer", "--methods", "dual_buffer", "--seeds", "1,",
+            "--out", str(out)]
+    assert run_sweep([*args, "--dry-run"]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert lines[-1] == f"3 runs in --out {out}; 450 env steps to go; nothing written (--dry-run)"
+    assert lines[-2].startswith("note: this sweep without --dry-run would be refused: ") and "different sweep" in lines[-2]
+    assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
+    assert run_sweep(args) == 2 and "holds a different sweep" in capsys.readouterr().err
+    assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before

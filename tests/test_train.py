@@ -524,3 +524,40 @@ def test_continue_refuses_bad_input_in_one_line_writing_nothing(finished_2k, tmp
 def test_train_needs_out_or_continue(capsys):
     rc, _, err = train_cli(capsys, "--total-steps", "50")
     assert rc == 2 and err == ["error: --out is required (or --continue RUN --total-steps N)"]
+
+
+@pytest.mark.parametrize("preset_name", ["smoke", "quick", "reference", "full", "paper"])
+def test_a_preset_written_as_yaml_reads_back_to_its_config(preset_name, tmp_path, capsys):
+    """Issue 51: `train --preset P ... --print-config` writes the preset's config as one YAML file; `--config FILE`
+    gives that config exactly (every task), and nothing is trained or written."""
+    from maniskill_dualher.config import TASKS
+    from maniskill_dualher.experiment.presets import preset
+    from maniskill_dualher.train import build_parser, config_from_args, main
+    for task in TASKS:
+        capsys.readouterr()
+        assert main(["--preset", preset_name, "--task", task, "--method", "sac_her_per", "--seed", "3",
+                     "--print-config"]) == 0
+        text = capsys.readouterr().out
+        assert text.startswith("# RunConfig") and f"--preset {preset_name}" in text
+        f = tmp_path / f"{preset_name}-{task}.yaml"
+        f.write_text(text)
+        got = config_from_args(build_parser().parse_args(["--config", str(f)]))
+        assert got == preset(preset_name).single_config("sac_her_per", 3, task)
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(f"{preset_name}-{t}.yaml" for t in TASKS)
+
+
+def test_config_files_in_yaml_and_json(tmp_path, capsys):
+    """A partial config in YAML (1e-3 is a number, as in JSON and YAML 1.2) or JSON; a broken YAML file: one line."""
+    from maniskill_dualher.train import build_parser, config_from_args, main
+    (tmp_path / "a.yaml").write_text("env_id: CloseBox-v1\nsac:\n  lr: 1e-3\n  hidden: [32, 32]\nreplay:\n"
+                                     "  ratio: [0.5, 0.5]\n")
+    (tmp_path / "a.json").write_text(json.dumps({"env_id": "CloseBox-v1", "sac": {"lr": 1e-3, "hidden": [32, 32]},
+                                                 "replay": {"ratio": [0.5, 0.5]}}))
+    cfgs = [config_from_args(build_parser().parse_args(["--config", str(tmp_path / n)])) for n in ("a.yaml", "a.json")]
+    assert cfgs[0] == cfgs[1] and cfgs[0].sac.lr == 1e-3 and cfgs[0].sac.hidden == (32, 32)
+    assert cfgs[0].replay.ratio == (0.5, 0.5)
+    (tmp_path / "b.yml").write_text("sac: [\n")
+    assert main(["--config", str(tmp_path / "b.yml"), "--out", str(tmp_path / "run")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"error: config file {tmp_path / 'b.yml'} is not valid YAML (line 2)"]
+    assert not (tmp_path / "run").exists()

@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import shlex
 import sys
 from pathlib import Path
@@ -21,7 +22,8 @@ from typing import Callable, List, Optional, Sequence, Tuple
 
 from .. import rundir
 from ..cmdline import OneLineParser, did_you_mean, missing_package, old_flag
-from ..config import TASKS, ConfigError
+from ..fileio import plural
+from ..config import TASKS, ConfigError, read_config_file
 from ..methods import METHOD_SPECS
 from ..rundir import RUNS_DIR, SWEEP
 from . import overrides
@@ -39,21 +41,27 @@ def _split(text: str) -> List[str]:
     return [t.strip() for t in text.split(",") if t.strip()]
 
 
-def parse_seeds(text: str) -> Tuple[int, ...]:
-    """'3' -> (0, 1, 2) (a count); '0,4,7' or '7,' -> those seeds."""
+SEED_FORMS = "'3' is a count: seeds 0,1,2; '0,4,7' lists seeds; '7,' is seed 7 alone"
+
+
+def parse_seeds(text: str, flag: str = "--seeds") -> Tuple[int, ...]:
+    """One meaning per form: '3' -> (0, 1, 2) (a count); '0,4,7' -> those seeds; '7,' -> (7,) (a list of one).
+    Each refusal says the forms, and '0' (a count of none) how to write seed 0 alone."""
     try:
         seeds = tuple(int(s) for s in _split(text))
     except ValueError:
-        raise ConfigError(f"--seeds must be a count (3) or a list (0,1,2), got {text!r}") from None
+        raise ConfigError(f"{flag} {text!r}: not a count or a list of seeds ({SEED_FORMS})") from None
     bad = [s for s in seeds if s < 0]
     if bad:
-        raise ConfigError(f"seed must be >= 0, got {bad[0]}")
+        raise ConfigError(f"{flag} {text!r}: a seed must be >= 0, got {bad[0]} ({SEED_FORMS})")
     if "," not in text and seeds:  # a count
         if seeds[0] == 0:
-            raise ConfigError("--seeds count must be >= 1, got 0")
+            raise ConfigError(f"{flag} 0 is a count of no seeds: seed 0 alone is {flag} 0, ({SEED_FORMS})")
         return tuple(range(seeds[0]))
-    if not seeds or len(set(seeds)) != len(seeds):
-        raise ConfigError(f"--seeds must list distinct seeds, got {text!r}")
+    if not seeds:
+        raise ConfigError(f"{flag} {text!r}: no seed given ({SEED_FORMS})")
+    if len(set(seeds)) != len(seeds):
+        raise ConfigError(f"{flag} {text!r} lists a seed twice: list distinct seeds ({SEED_FORMS})")
     return seeds
 
 
@@ -110,9 +118,10 @@ def definition_from_args(a: argparse.Namespace) -> dict:
             raise ConfigError(f"--adapt-steps must be >= 1, got {a.adapt_steps}")
         budgets["adapt"] = {t: a.adapt_steps for t in used}
     seeds = parse_seeds(a.seeds) if a.seeds is not None else p.seeds
-    chain_seeds = parse_seeds(a.chain_seeds) if a.chain_seeds is not None else (
+    chain_seeds = parse_seeds(a.chain_seeds, "--chain-seeds") if a.chain_seeds is not None else (
         seeds if a.seeds is not None else p.chain_seeds)
-    settings = [o.text() for o in overrides.parse_all(a.set or [])]  # normalised, validated
+    given = file_settings(a.config) if a.config else []  # --config FILE's settings, then --set's
+    settings = [o.text() for o in overrides.parse_all(given + list(a.set or []))]  # normalised, validated
     d = {
         "version": DEFINITION_VERSION,
         "preset": a.preset,
@@ -139,6 +148,34 @@ def definition_from_args(a: argparse.Namespace) -> dict:
         if e.kind == "chain" and len(order) < 2:
             raise ConfigError(f"experiment {name!r} needs a chain of at least 2 tasks, got --task-order {a.task_order!r}")
     return d
+
+
+PER_RUN = {"env_id": "--tasks", "method": "--methods", "seed": "--seeds", "total_steps": "the budgets (--preset, "
+           "--source-steps, --adapt-steps)"}
+
+
+def file_settings(path: str) -> List[str]:
+    """``--config FILE`` (YAML or JSON, ``config.read_config_file``) as ``--set`` items: a RunConfig's nested
+    mapping, or part of one (dotted keys too); a stage's own settings under ``adapt:``, ``source:`` or ``stageN:``.
+    Keys the sweep sets per run are refused with the flag that sets them."""
+    def flat(d: dict, stage: str, section: str) -> List[str]:
+        out = []
+        for k, v in d.items():
+            k = str(k)
+            if isinstance(v, dict) and not stage and not section and (k in overrides.STAGE_WORDS
+                                                                      or re.fullmatch(r"stage\d+", k)):
+                out += flat(v, k + ".", "")
+            elif isinstance(v, dict) and not section and k in overrides.SECTIONS:
+                out += flat(v, stage, k + ".")
+            elif not section and k in PER_RUN:
+                raise ConfigError(f"--config {path}: {stage}{k} is the sweep's to set per run ({PER_RUN[k]}), not a "
+                                  f"setting of every run: remove it from the file")
+            else:
+                value = "none" if v is None else str(v).lower() if isinstance(v, bool) else \
+                    ",".join(map(str, v)) if isinstance(v, (list, tuple)) else str(v)
+                out.append(f"{stage}{section}{k}={value}")
+        return out
+    return flat(read_config_file(path), "", "")
 
 
 def check_out_folder(out: Path, d: dict, force: bool) -> None:
@@ -207,7 +244,8 @@ def make_parser() -> argparse.ArgumentParser:
                                      "uses those of them it is defined for)")
     p.add_argument("--seeds", help="a count or a comma list, for every experiment: '3' is a count (seeds 0,1,2); "
                                    "'0,4,7' lists seeds; one seed is a list of one, written with a trailing comma: "
-                                   "'7,' is seed 7 ('7' is seeds 0-6). Default: the preset's; the reference preset's "
+                                   "'7,' is seed 7 ('7' is seeds 0-6; '0' is no seeds, refused: seed 0 alone is "
+                                   "'0,'). Default: the preset's; the reference preset's "
                                    "are per arm, the seeds its cells have in results/reference/scores.csv (none for an "
                                    "arm not run there), and --seeds or --chain-seeds drops them. Costly arms are capped "
                                    "(Arm/Experiment "
@@ -231,6 +269,10 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="a RunConfig setting for every run, e.g. sac.lr=3e-4, or one stage: adapt.sac.random_steps=0 "
                         "(repeatable; keys below)")
+    p.add_argument("--config", metavar="FILE",
+                   help="settings for every run from a YAML (.yaml, .yml) or JSON file: a RunConfig's mapping or part "
+                        "of one (sac: {lr: 3e-4}), a stage's under adapt:, source: or stageN:; each is a --set "
+                        "before the command line's (no env_id, method, seed or total_steps: the sweep sets those)")
     p.add_argument("--no-carry-replay", action="store_true",
                    help="transfer networks only; each stage starts with empty replay buffers")
     p.add_argument("--out", help="output folder (default: runs/<preset>, ignored by git; committed results live in "
@@ -256,7 +298,9 @@ def make_parser() -> argparse.ArgumentParser:
                    help="run nothing: write one `python -m maniskill_dualher.train` command per unfinished run "
                         "into FILE, parents before children (configs in FILE's folder), for a SLURM job array "
                         "or any scheduler (docs/cluster.md)")
-    p.add_argument("--dry-run", action="store_true", help="print the runs and their cost, write nothing")
+    p.add_argument("--dry-run", action="store_true",
+                   help="print the runs, their cost and --out, write nothing (any --out, read only: one another sweep "
+                        "holds is named, not refused)")
     p.add_argument("--no-report", action="store_true", help="skip building the report at the end")
     return p
 
@@ -350,7 +394,13 @@ def _main(argv: Optional[Sequence[str]], held, train: Optional[Callable], report
             pack = memory[1].pack
             if memory[1].note and a.backend != "inline":
                 workers = memory[1].workers
-        check_out_folder(out, d, a.force)
+        refused = None
+        try:
+            check_out_folder(out, d, a.force)
+        except ConfigError as e:
+            if not a.dry_run:  # a dry run reads any folder, writes nothing: it says what a run would answer
+                raise
+            refused = str(e)
         if not a.dry_run:  # one sweep per folder; then look again, now that no other sweep can write it
             held.enter_context(FolderLock(out))
             check_out_folder(out, d, a.force)
@@ -387,7 +437,9 @@ def _main(argv: Optional[Sequence[str]], held, train: Optional[Callable], report
         for line in memory_lines(memory):
             print(line)
         total = sum(c.total_steps for c in todo_cfgs)
-        print(f"{len(nodes)} runs; {total} env steps to go; nothing written (--dry-run)")
+        if refused:
+            print(f"note: this sweep without --dry-run would be refused: {refused}")
+        print(f"{plural(len(nodes), 'run')} in --out {out}; {total} env steps to go; nothing written (--dry-run)")
         return 0
 
     rundir.write_json(out / SWEEP, d)
