@@ -127,7 +127,7 @@ def _settings_rows(cfg: dict, transfer: Optional[dict] = None) -> List[str]:
                        + (f", PER exponent {rep.get('priority_exponent')}" if cfg["method"] != "sac" else "")
                        + (f", R/E ratio {'/'.join(map(str, rep.get('ratio', [])))} ({rep.get('dual_mode')})"
                           if cfg["method"] == "dual_buffer" else "")),
-            ("evaluation during training", f"{cfg.get('eval_episodes')} episodes every {cfg.get('eval_every')} "
+            ("evaluation during training", f"{plural(int(cfg.get('eval_episodes') or 0), 'episode')} every {cfg.get('eval_every')} "
                                            "env steps")]
     if cfg["method"] == "sac":
         rows[-2] = ("replay", f"uniform, capacity {rep.get('capacity')}, no HER, no PER")
@@ -227,9 +227,9 @@ def card_text(doc: dict) -> str:
         f"Held out: {score_line(doc)} (seeds no training evaluation used), mean episode length "
         f"{h['mean_episode_length']} steps; `{h['command']}` reproduces it. "
         + (f"Its last training evaluation, at env step {doc['policy_env_steps']}: {doc['policy_train_eval_success']} "
-           f"success on {n_eval} episodes (no evaluation chose this policy)." if t else
+           f"success on {plural(n_eval, 'episode')} (no evaluation chose this policy)." if t else
            f"Its training evaluation at env step {doc['policy_env_steps']}: {doc['policy_train_eval_success']} "
-           f"success on {n_eval} episodes (the ones that chose it, so optimistic)."),
+           f"success on {plural(n_eval, 'episode')} (the ones that chose it, so optimistic)."),
         "",
         *([doc["seed_note"]] if doc.get("seed_note") else _transfer_seeds(t, cfg) if t else [
             f"**Seeds: this folder is one training run (seed {cfg.get('seed')}).** It shows what one run reached, "
@@ -272,7 +272,7 @@ def card_text(doc: dict) -> str:
             + ("." if doc.get("exported_from") else
                "; zero-shot on the other tasks, earlier runs of the same settings and seed: "
                "`results/movies/zero_shot.csv` (a reaching policy closes the box, most other pairs fail)."),
-            f"* Chosen by its own training evaluations ({n_eval} episodes), so only the held-out score above is "
+            f"* Chosen by its own training evaluations ({plural(n_eval, 'episode')}), so only the held-out score above is "
             "unbiased."]),
         "",
         "## Licence and citation",
@@ -355,7 +355,7 @@ def export_doc(run: Path, which: Optional[str] = None) -> dict:
         "task": cfg["env_id"], "method": cfg["method"],
         "file": f"policy.pt (the run's {src.name}: "
                 + ("its best training evaluation" if which == "best" else "its state at the end of the run")
-                + f", {ev} episodes an evaluation)",
+                + f", {plural(int(ev or 0), 'episode')} an evaluation)",
         "command": f"{_command_of(first)}; cp RUN/{src.name} policy.pt",
         "commit": last.get("commit"), "dirty": bool(last.get("dirty")), "machine": machine,
         "versions": dict(sorted((last.get("versions") or {}).items())),

@@ -27,7 +27,7 @@ on success make them equal); ``--json`` prints one JSON object with all of them.
 
 Seeing an episode without a render device:
 
-* ``--record DIR`` wraps the ManiSkill env in ``RecordEpisode(save_trajectory=True, record_env_state=True)``,
+* ``--record [DIR]`` (DIR: ``runs/recordings`` unless given) wraps the ManiSkill env in ``RecordEpisode(save_trajectory=True, record_env_state=True)``,
   with ``save_video=True`` where the simulator can render (``scene.can_render()``): DIR/<name>.h5 + .json.
   Their env id names the module that registers it (``maniskill_dualher.tasks:CloseBox-v1``), so ManiSkill's
   replay tool takes them as typed, in a fresh process (the recipe: ``docs/tasks.md``, "Replaying a recording";
@@ -51,10 +51,12 @@ import numpy as np
 from .cli import OneLineParser, did_you_mean, old_flag
 from .config import OUR_TASKS, ConfigError, RunConfig
 from .envs import EVAL_SEED_BASE, BatchEnv, make_env
+from .fileio import plural
 from .movie import MOVIE_SUFFIXES, draw_movie, task_info
 from .policy import Policy, load_policy
 
 ZERO_SHOT_CSV = "zero_shot.csv"
+RECORD_DIR = "runs/recordings"  # --record without DIR: under runs/ (.gitignore), never the checkout's top
 TASKS_MODULE = "maniskill_dualher.tasks"  # the module that registers OUR_TASKS (a recorded env id names it)
 CONFIDENCE = 0.95
 # Held-out reset seeds: far from the training evaluations' EVAL_SEED_BASE + i and below 2**31 - 1 (ManiSkill's
@@ -296,7 +298,7 @@ def summary_text(r: dict) -> str:
     lines = [
         f"{head}: policy {r['policy']} (env step {r['policy_env_steps']}, its eval success "
         f"{r['policy_eval_success'] if r['policy_eval_success'] is not None else 'n/a'})",
-        f"{r['episodes']} episodes on {which}: {r['seed_first']}..{r['seed_last']}",
+        f"{plural(r['episodes'], 'episode')} on {which}: {r['seed_first']}..{r['seed_last']}",
         f"deterministic policy, {rule} {steps} steps",
         f"success      {r['success_rate']:.3f} ({r['successes']}/{r['episodes']}), "
         f"95% CI {_fmt_ci(r['success_ci'])} (Wilson)",
@@ -333,7 +335,9 @@ def build_parser() -> argparse.ArgumentParser:
                             f"{HELDOUT_SEED_BASE}, seeds no training evaluation used]")
     old_flag(p, "--seed", "the first episode's env reset seed is --reset-seed S (--seed is train's run seed)")
     p.add_argument("--best", action="store_true", help="use policy_best.pt (the best evaluation) instead of policy.pt")
-    p.add_argument("--record", metavar="DIR", help="write ManiSkill .h5/.json trajectories (replayable to video) here")
+    p.add_argument("--record", metavar="DIR", nargs="?", const=RECORD_DIR,
+                   help="write ManiSkill .h5/.json trajectories (replayable to video) into DIR (default, --record "
+                        f"alone: {RECORD_DIR}, which git ignores)")
     p.add_argument("--movie", metavar="FILE", help="draw one episode's state to FILE (.gif or .mp4)")
     p.add_argument("--movie-episode", default="0", metavar="K",
                    help="which episode --movie draws: 0 = the first (seed S), K = seed S+K [default: 0]")

@@ -218,9 +218,31 @@ def load_torch_file(path: PathLike, what: str) -> object:
             shown = ", ".join(names[:3]) + (", ..." if len(names) > 3 else "")
             raise ConfigError(f"refused {what} {path}: it holds objects other than tensors and plain data "
                               f"({shown}); loading it would run code from the file") from None
-        raise ConfigError(f"unreadable {what} {path}: {type(e).__name__}") from None
+        raise ConfigError(f"unreadable {what} {path}: {unreadable_cause(path, e)}") from None
     except Exception as e:  # a truncated or foreign file
-        raise ConfigError(f"unreadable {what} {path}: {type(e).__name__}") from None
+        raise ConfigError(f"unreadable {what} {path}: {unreadable_cause(path, e)}") from None
+
+
+def unreadable_cause(path: PathLike, error: BaseException) -> str:
+    """Why a torch file did not load, in words: missing, empty, cut short (a torch file is a zip archive whose
+    directory is at its end), not a torch file, or else the error itself (its first line)."""
+    import zipfile
+    p = Path(path)
+    try:
+        size = p.stat().st_size
+        with open(p, "rb") as f:
+            head = f.read(4)
+    except OSError as e:
+        return f"{type(e).__name__}: {e.strerror or e}"
+    if size == 0:
+        return "the file is empty (0 bytes): a copy or download that did not finish?"
+    if head == b"PK\x03\x04" and not zipfile.is_zipfile(p):
+        return (f"the file is cut short ({size:,} bytes, its zip archive has no end): a copy or download that did "
+                f"not finish? Copy it again")
+    if head[:1] != b"\x80" and head != b"PK\x03\x04":
+        return f"not a torch file (it starts with {head!r}, not a zip archive or a pickle)"
+    text = str(error).strip().splitlines()
+    return f"{type(error).__name__}" + (f": {text[0][:160]}" if text else "")
 
 
 def load_checkpoint(run_dir: PathLike) -> dict:

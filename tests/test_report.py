@@ -179,7 +179,7 @@ def test_wall_time_and_unfinished_runs_do_not_change_tables(folder):
                [_cell("single", "paper", "CloseBox-v1", "sac", 9, role="single", chain="")], done=False)
     report.build_report(folder)
     assert {n: (folder / n).read_bytes() for n in names} == before
-    assert "1 runs unfinished" in (folder / "summary.md").read_text()
+    assert "1 run unfinished" in (folder / "summary.md").read_text()
     assert not list(folder.glob(".*.tmp")) and not list(folder.glob(".*.png"))   # atomic writes leave no temp files
 
 

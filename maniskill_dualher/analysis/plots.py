@@ -325,26 +325,43 @@ ABLATION_SIZE = (7.0, 2.7)   # inches, the two panels; the legend below adds a l
 LEGEND_TWO_COLUMNS = 48      # longest label (characters) that two legend columns fit within the figure's width
 
 
-def plot_ablation(curves, path: Path, experiment: str) -> bool:
-    """One ablation experiment (``registry.fig6_file``): its arms, the paper treatment where the experiment has
-    one, and each claim's comparison arm; evaluation success and cumulative successful training episodes. Arms
-    by display name, one colour per arm in every figure; the title names the experiment's arms not drawn."""
+def _ablation_plan(curves, experiment: str):
+    """(adaptation curve rows, the cells an ablation's figure draws, the experiment's arms it does not draw: no
+    runs in this folder), or None where the folder has none of the experiment's adaptation runs."""
     adapt = [r for r in curves if r["role"] == "adapt"]
     if not any(r["experiment"] == experiment for r in adapt):
-        return False
+        return None
     runs: Dict[Tuple[str, str, str], set] = defaultdict(set)
     for r in adapt:
         runs[(r["experiment"], r["arm"], r["method"])].add(r["run"])
     cells = _ablation_cells(experiment, runs)
-    want = set(cells)
-    g = curves_by(adapt, lambda r: (r["experiment"], r["arm"], r["method"]) in want,
-                  lambda r: (r["experiment"], r["arm"], r["method"]))
-    groups = {cell_label(*k): (g[k], color_of(k[2], k[1], k[0]), *style_of(k[2])) for k in cells}
     e = EXPERIMENTS.get(experiment)
     key = lambda x, a: "paper" if is_paper_treatment(x, a) else registry.colour_key(x, a)  # noqa: E731
     drawn = {key(k[0], k[1]) for k in cells}
     absent = [arm_label(experiment, a.name) for a in (e.arms if e is not None else ())
               if key(experiment, a.name) not in drawn]
+    return adapt, cells, absent
+
+
+def undrawn_arms(curves, experiment: str) -> List[str]:
+    """The display names of an ablation's arms its figure does not draw (no runs in this folder): summary.md
+    names them beside the figure; its title does not."""
+    plan = _ablation_plan(curves, experiment)
+    return plan[2] if plan else []
+
+
+def plot_ablation(curves, path: Path, experiment: str) -> bool:
+    """One ablation experiment (``registry.fig6_file``): its arms, the paper treatment where the experiment has
+    one, and each claim's comparison arm; evaluation success and cumulative successful training episodes. Arms
+    by display name, one colour per arm in every figure (the arms not drawn: ``undrawn_arms``, in summary.md)."""
+    plan = _ablation_plan(curves, experiment)
+    if plan is None:
+        return False
+    adapt, cells, _ = plan
+    want = set(cells)
+    g = curves_by(adapt, lambda r: (r["experiment"], r["arm"], r["method"]) in want,
+                  lambda r: (r["experiment"], r["arm"], r["method"]))
+    groups = {cell_label(*k): (g[k], color_of(k[2], k[1], k[0]), *style_of(k[2])) for k in cells}
     plt = _plt()
     fig, axes = plt.subplots(1, 2, figsize=ABLATION_SIZE)
     # drawn last to first, so the first listed (the paper's settings; a shorter budget, whose runs are the first
@@ -360,8 +377,6 @@ def plot_ablation(curves, path: Path, experiment: str) -> bool:
                ncol=ncol, frameon=False)
     title = experiment_label(experiment)
     note = "mean over seeds, 95% bootstrap band; line style: method"
-    if absent:
-        note += f"\nno runs in this folder: {', '.join(absent)}"
     fig.suptitle(f"{title}\n{note}", fontsize=9.5)
     fig.tight_layout()
     save_figure(fig, path)

@@ -207,9 +207,15 @@ def summary_md(name: str, sweep: Optional[dict], scores, tables, claims, figures
             s += [f"## {title} (`{name}`)", "", md_table(tables[name], cols)]
     s += ["## Metrics", ""] + [f"- `{m}`: {doc}" for m, (_, doc) in METRICS.items()] + [""]
     s += ["## Figures", ""] + [f"![{f}]({f})" for f in figures] + [""]
+    undrawn = [(f, plots.undrawn_arms(curves, e)) for e in registry.experiments_feeding(registry.FIG6)
+               for f in [registry.fig6_file(e)] if f in figures]
+    undrawn = [(f, arms) for f, arms in undrawn if arms]
+    if undrawn:
+        s += ["Arms an ablation figure does not draw (no runs in this folder):", ""] + [
+            f"- `{f}`: " + "; ".join(f'"{a}"' for a in arms) for f, arms in undrawn] + [""]
     if merged:  # where the rows came from, after the results
         s += ["## Sweeps merged in (`report --merge`)", ""] + [
-            f"- {m['runs']} runs of the sweep `{m['folder']}` (experiments {', '.join(m['experiments'])}; run names "
+            f"- {plural(m['runs'], 'run')} of the sweep `{m['folder']}` (experiments {', '.join(m['experiments'])}; run names "
             f"prefixed `{m['folder']}/`)." for m in merged] + [""]
     if unfinished:
         s += ["## Unfinished runs (not counted)", ""] + [f"- {u}" for u in unfinished] + [""]
@@ -354,7 +360,7 @@ def _build(src: Path, out: Path, name: str, resamples: int, reference: Optional[
             missing = sorted(r for r in {r["run"] for r in old_scores} - {r["run"] for r in new_scores}
                              if not (src / r).is_dir())  # runs whose folders are gone (a shipped folder)
             if missing:
-                raise ConfigError(f"{src / SCORES} holds {len(missing)} runs this folder no longer has "
+                raise ConfigError(f"{src / SCORES} holds {plural(len(missing), 'run')} this folder no longer has "
                                   f"(e.g. {missing[0]}); refusing to replace it with less")
         atomic_write_text(out / SCORES, csv_text(new_scores, SCORE_COLUMNS))
         atomic_write_text(out / CURVES, csv_text(curve_rows(runs), CURVE_COLUMNS))
@@ -452,7 +458,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     for n in done.notes:
         print(f"note: {n}")
     if done.merged_before is not None:
-        print(f"{a.folder} already holds the {done.merged_before} runs of {a.merge} (merged before) "
+        print(f"{a.folder} already holds the {plural(done.merged_before, 'run')} of {a.merge} (merged before) "
               + ("and its report is complete: nothing written" if not done.changed else
                  "but its report was not up to date: rebuilt (" + ", ".join(w.name for w in done.written) + ")"))
         return 0

@@ -28,7 +28,7 @@ from typing import Callable, Dict, List, Optional
 
 from .. import rundir
 from ..config import RunConfig
-from ..fileio import atomic_write_text
+from ..fileio import atomic_write_text, plural
 from . import protocol
 from .grid import Node, job_for
 
@@ -362,7 +362,7 @@ def run_grid(nodes: List[Node], out: Path, backend, progress: bool = True, retri
     if hasattr(backend, "listener"):
         backend.listener = tracker.poll
     if done:
-        bar.write(f"{len(done)} of {len(nodes)} runs already finished: skipped")
+        bar.write(f"{len(done)} of {plural(len(nodes), 'run')} already finished: skipped")
 
     def fail(n: Node, why: str) -> None:
         tracker.finish(n, ok=False)
@@ -413,7 +413,7 @@ def run_grid(nodes: List[Node], out: Path, backend, progress: bool = True, retri
                     bar.write(f"done {n.label}: {headline(r['row'])}")
         blocked = [n.rel for n in todo]
         if blocked:
-            bar.write(f"{len(blocked)} runs not started: they start from a failed run")
+            bar.write(f"{plural(len(blocked), 'run')} not started: they start from a failed run")
     finally:
         bar.close()
     return failed + blocked

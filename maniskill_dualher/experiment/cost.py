@@ -35,6 +35,7 @@ from dataclasses import dataclass
 from typing import Callable, Dict, List, Optional, Sequence, Tuple
 
 from ..config import ConfigError
+from ..fileio import plural
 
 # One env step of our tasks, one thread: 0.87 ms on CPU B (CloseMicrowave, facts 2026-12-03), 0.98 ms on CPU A
 # (py-spy of a quick run, facts 2026-12-02), 0.94-1.04 ms on CPU C (bench/env_speed.py: 961-1063 steps/s). Used
@@ -269,7 +270,7 @@ def describe(cost: Cost, workers: int) -> List[str]:
         f"cost: {cost.env_steps:,} env steps, {upd} gradient updates",
         f"estimated time (updates and env steps timed here: {cost.env_steps_per_s:.0f} env steps/s; evaluation "
         "and startup included, the report not; an estimate, not a measurement):",
-        f"  one CPU core: {rng(_dur)}; this machine with {workers} workers: "
+        f"  one CPU core: {rng(_dur)}; this machine with {plural(workers, 'worker')}: "
         f"{rng(lambda s: _dur(local_wall_seconds(s, cost.runs, workers)))}",
         f"  a Ray cluster: {rng(lambda s: f'{s / 3600:,.0f} core-hours')} (wall time = that / its CPUs)",
     ]

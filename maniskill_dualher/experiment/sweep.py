@@ -199,7 +199,7 @@ def check_out_folder(out: Path, d: dict, force: bool) -> None:
     foreign = [str(p.parent.relative_to(out)) for p in sorted((out / RUNS_DIR).rglob(rundir.CONFIG))
                if str(p.parent.relative_to(out)) not in ours] if (out / RUNS_DIR).is_dir() else []
     if foreign and not force:
-        raise ConfigError(f"{out} holds {len(foreign)} runs of a different config (e.g. {foreign[0]}); "
+        raise ConfigError(f"{out} holds {plural(len(foreign), 'run')} of a different config (e.g. {foreign[0]}); "
                           f"use another --out, or --force")
     if (out / "scores.csv").is_file() and not (out / RUNS_DIR).is_dir() and not force:
         raise ConfigError(f"{out} holds a report without run folders (a committed reference?); "
@@ -447,12 +447,12 @@ def _main(argv: Optional[Sequence[str]], held, train: Optional[Callable], report
     if a.emit_commands:
         levels = emit_commands(nodes, out, Path(a.emit_commands))
         n_cmd = sum(len(lv) for lv in levels)
-        print(f"{n_cmd} commands in {a.emit_commands} ({len(nodes) - n_cmd} runs already finished); run them "
+        print(f"{plural(n_cmd, 'command')} in {a.emit_commands} ({plural(len(nodes) - n_cmd, 'run')} already finished); run them "
               f"level by level (a level's runs in any order, in parallel), then: python -m maniskill_dualher.report {out}")
         for i, lv in enumerate(levels):
-            print(f"  level {i}: lines {lv[0]}-{lv[-1]} ({len(lv)} runs)")
+            print(f"  level {i}: lines {lv[0]}-{lv[-1]} ({plural(len(lv), 'run')})")
         return 0
-    print(f"sweep {a.preset}: {len(nodes)} runs in {out} on {a.backend} backend"
+    print(f"sweep {a.preset}: {plural(len(nodes), 'run')} in {out} on {a.backend} backend"
           + (f", up to {pack} runs per worker" if pack > 1 else ""), flush=True)
     for line in memory_lines(memory):
         print(line, flush=True)
@@ -478,7 +478,7 @@ def _main(argv: Optional[Sequence[str]], held, train: Optional[Callable], report
         if finished:
             try:
                 written = report(out)
-                print(f"report: {len(written)} files in {out} (summary: {out / 'summary.md'})")
+                print(f"report: {plural(len(written), 'file')} in {out} (summary: {out / 'summary.md'})")
             except ConfigError as e:
                 if not failed:
                     print(f"error: report: {e}", file=sys.stderr)
@@ -488,7 +488,7 @@ def _main(argv: Optional[Sequence[str]], held, train: Optional[Callable], report
             no_report = "; no report: no run finished"
     if failed:
         again = "python -m maniskill_dualher.sweep " + shlex.join(sys.argv[1:] if argv is None else list(argv))
-        print(f"error: {len(failed)} of {len(nodes)} runs did not finish (first: {failed[0]}){no_report}; "
+        print(f"error: {len(failed)} of {plural(len(nodes), 'run')} did not finish (first: {failed[0]}){no_report}; "
               f"rerun the same command to retry them: {again}", file=sys.stderr)
         return 1
     return 0
