@@ -1,6 +1,6 @@
 """Evaluation's Python per episode and replay sampling per batch: this tree (A) against a frozen clone (B).
 
-    python bench/eval_cpu.py --base /work/frozen [--tasks ReachTarget-v1,CloseBox-v1,CloseMicrowave-v1]
+    python bench/eval_cpu.py --base /work/frozen [--tasks ID,ID,...]   # default: config.TASKS
         [--members 3] [--evals 3] [--batches 2000] [--fill 20000] [--order ABBA] [--json FILE]
 
 Each measurement runs in a fresh process with ``PYTHONPATH`` set to its side's tree, the sides interleaved in
@@ -35,7 +35,7 @@ import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-TASKS = ("ReachTarget-v1", "CloseBox-v1", "CloseMicrowave-v1")
+from maniskill_dualher.config import TASKS  # noqa: E402  (the catalog; a worker reads its own tree's)
 
 
 # --------------------------------------------------------------------------- inside a measurement's process

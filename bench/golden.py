@@ -28,7 +28,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-TASKS = ("ReachTarget-v1", "CloseBox-v1", "CloseMicrowave-v1")
+from maniskill_dualher.config import TASKS  # the catalog: every task
 METHODS = ("sac", "sac_her_per", "dual_buffer")
 STEPS = 300
 

@@ -1,4 +1,4 @@
-"""GPU check: our three tasks and our training loop on ManiSkill's GPU simulation (``physx_cuda``), one NVIDIA GPU.
+"""GPU check: our tasks (config.TASKS) and our training loop on ManiSkill's GPU simulation (``physx_cuda``), one NVIDIA GPU.
 
     python bench/gpu_check.py [--envs 16,64] [--timeout 120] [--sections a,b] [--tasks ...] [--json FILE]
 
@@ -102,7 +102,7 @@ REPO = os.path.dirname(HERE)
 if REPO not in sys.path:
     sys.path.insert(0, REPO)
 
-TASKS = ("ReachTarget-v1", "CloseBox-v1", "CloseMicrowave-v1")
+from maniskill_dualher.config import TASKS  # noqa: E402  (the catalog: every task)
 FAKE_VAR = "GPU_CHECK_FAKE"
 RESULT_TAG = "@@gpu_check_result "
 DRIFT_TOL = 1e-3          # rad over 100 idle steps

@@ -371,8 +371,8 @@ def report(res: dict, per_event: dict) -> str:
 
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--tasks", default=None, help="comma-separated tasks (default: all three; CloseMicrowave-v1 "
-                                                 "with --regime paper)")
+    p.add_argument("--tasks", default=None, help="comma-separated tasks (default: every task of config.TASKS; "
+                                                 "the paper's target with --regime paper)")
     p.add_argument("--regime", default="quick", choices=("quick", "paper"),
                    help="quick: the quick preset; paper: the paper_regime experiment's episode arm")
     p.add_argument("--members", type=int, default=2)
@@ -388,7 +388,9 @@ def main(argv=None) -> None:
     p.add_argument("--load", default="", help="a note on the machine's load while this ran, kept in the output")
     args = p.parse_args(argv)
     if args.tasks is None:
-        args.tasks = "CloseMicrowave-v1" if args.regime == "paper" else "ReachTarget-v1,CloseBox-v1,CloseMicrowave-v1"
+        from maniskill_dualher.config import TASKS
+        from maniskill_dualher.experiment.registry import PAPER_TARGET
+        args.tasks = PAPER_TARGET if args.regime == "paper" else ",".join(TASKS)
     if args.regime == "paper" and args.learning_starts is None:
         args.learning_starts = 1000
     from maniskill_dualher.config import TASKS

@@ -2,7 +2,7 @@
 
     python bench/sweep_ab.py --base /path/to/clone-of-the-base-commit [--order ABBA] [--rounds 1]
         [--control /path/to/a-second-clone-of-this-commit] [--steps 3000] [--seeds 0,1] [--methods sac_her_per,dual_buffer]
-        [--tasks ReachTarget-v1,CloseBox-v1,CloseMicrowave-v1] [--preset reference] [--workers 2] [--json FILE]
+        [--tasks ID,ID,...] [--preset reference] [--workers 2] [--json FILE]
 
 A is this working tree, B the clone at ``--base`` (``git clone <repo> DIR && git -C DIR checkout <commit>``).
 Each side runs ``python -m maniskill_dualher.sweep --preset P --experiments single ... --no-report`` from its
@@ -38,6 +38,7 @@ sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from sweep_speed import metrics  # noqa: E402  (every run's metrics without wall time: one definition)
+from maniskill_dualher.experiment.registry import PAPER_CHAIN  # noqa: E402  (the sweep's default tasks)
 
 
 def git_commit(tree: Path) -> str:
@@ -95,7 +96,8 @@ def main(argv=None) -> int:
     p.add_argument("--steps", type=int, default=3000, help="env steps of every run")
     p.add_argument("--seeds", default="0,1")
     p.add_argument("--methods", default="sac_her_per,dual_buffer")
-    p.add_argument("--tasks", default="ReachTarget-v1,CloseBox-v1,CloseMicrowave-v1")
+    p.add_argument("--tasks", default=",".join(PAPER_CHAIN), help="comma list (default: the paper's tasks, "
+                   "registry.PAPER_CHAIN, the sweep's default)")
     p.add_argument("--preset", default="reference")
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--warmup-steps", type=int, default=300)

@@ -4,7 +4,7 @@ the other on this machine, in training env steps per second of wall time; and a 
 produced the same metrics (a run's results do not depend on its pack).
 
     python bench/sweep_speed.py [--packs 1,8] [--steps 4000] [--seeds 0,1,2,3] [--methods sac_her_per,dual_buffer]
-                                [--tasks ReachTarget-v1,CloseBox-v1,CloseMicrowave-v1] [--workers 2] [--preset quick]
+                                [--tasks ID,ID,...] [--workers 2] [--preset quick]
 
 The sweep is ``python -m maniskill_dualher.sweep --preset quick --experiments single`` at the quick preset's
 settings (64x64 networks, batch 256, one update per env step after 1000 steps, evaluation every 1000 steps),
@@ -29,6 +29,8 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+from maniskill_dualher.experiment.registry import PAPER_CHAIN  # noqa: E402  (the sweep's default tasks)
+
 
 def metrics(folder: Path) -> dict:
     """Every run's metrics.csv rows without wall time, by run folder."""
@@ -46,7 +48,8 @@ def main(argv=None) -> int:
     p.add_argument("--steps", type=int, default=4000, help="env steps of every run")
     p.add_argument("--seeds", default="0,1,2,3")
     p.add_argument("--methods", default="sac_her_per,dual_buffer")
-    p.add_argument("--tasks", default="ReachTarget-v1,CloseBox-v1,CloseMicrowave-v1")
+    p.add_argument("--tasks", default=",".join(PAPER_CHAIN), help="comma list (default: the paper's tasks, "
+                   "registry.PAPER_CHAIN, the sweep's default)")
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--preset", default="quick")
     p.add_argument("--json", help="also write the results here")

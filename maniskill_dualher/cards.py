@@ -37,11 +37,6 @@ from .fileio import atomic_write_text, plural
 
 POLICIES = Path(__file__).resolve().parents[1] / "results" / "policies"
 INTERFACE, SETTINGS = "interface", "training_settings"
-SUCCESS = {   # what success means, as tasks/*.py define it (README "What is where")
-    "ReachTarget-v1": "the gripper's tool centre point (TCP) within 0.05 m of the red ball",
-    "CloseBox-v1": "the box lid closed to within 0.1 rad",
-    "CloseMicrowave-v1": "the microwave door closed to within 0.1 rad",
-}
 ACTIONS = {   # the Panda's controllers (ManiSkill's panda.py), each dimension normalized to [-1, 1]
     "pd_joint_delta_pos": "7 arm joint-position deltas (up to ±0.1 rad per step) and 1 gripper finger target",
     "pd_ee_delta_pos": "3 end-effector position deltas (up to ±0.1 m per step) and 1 gripper finger target",
@@ -85,6 +80,15 @@ def sync_policy_json(folder: Path, write: bool = True) -> bool:
     if write:
         atomic_write_text(path, json.dumps(new, indent=2) + "\n")
     return True
+
+
+def success_text(task: str) -> str:
+    """What success means on ``task``, in words, as its file declares it (``PandaGoalEnv.success_text``); '' for
+    an env this project does not register."""
+    import maniskill_dualher.tasks  # noqa: F401  (registers our tasks)
+    from mani_skill.utils.registration import REGISTERED_ENVS
+    spec = REGISTERED_ENVS.get(task)
+    return getattr(spec.cls, "success_text", "") if spec is not None else ""
 
 
 def _method_display(method: str) -> str:
@@ -210,7 +214,7 @@ def card_text(doc: dict) -> str:
         "## What it is",
         "",
         f"* **Task**: `{task}` (ManiSkill3, Franka Panda; this repository's `tasks/`): success is "
-        f"{SUCCESS.get(task, 'as the task defines it')}.",
+        f"{success_text(task) or 'as the task defines it'}.",
         f"* **Policy**: `policy.pt`, a tanh-Gaussian actor ({' x '.join(map(str, itf['hidden']))} hidden units), "
         + (_transfer_policy(t, doc) if t else "its run's best training evaluation")
         + "; acting is deterministic (the Gaussian's mean).",

@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 
 from .cmdline import OneLineParser, did_you_mean, old_flag  # noqa: F401 (train's parser; evaluate imports it here)
-from .config import (DUAL_MODES, E_BATCHES, HER_STRATEGIES, MATMUL_PRECISIONS, OUR_TASKS, SAC_VARIANTS, SIM_BACKENDS,
+from .config import (DUAL_MODES, E_BATCHES, HER_STRATEGIES, MATMUL_PRECISIONS, SAC_VARIANTS, SIM_BACKENDS, TASKS,
                      SUCCESS_BUFFER_MODES, UPDATE_IMPLS, UPDATE_SCHEDULES, ConfigError, ReplayConfig, RunConfig,
                      SACConfig, config_yaml, field_docs, format_ratio, read_config_file)
 from .methods import METHOD_SPECS
@@ -119,11 +119,11 @@ def train_config(args: argparse.Namespace) -> RunConfig:
         cfg = overrides.apply(base, items).validate()
     except ConfigError as e:
         raise ConfigError(name_flags(str(e), keep={o.path.split(".")[-1] for o in given_by_set})) from None
-    if cfg.env_id not in OUR_TASKS and did_you_mean(cfg.env_id, OUR_TASKS):  # a typo of ours, not another env
+    if cfg.env_id not in TASKS and did_you_mean(cfg.env_id, TASKS):  # a typo of ours, not another env
         import gymnasium as gym
         import maniskill_dualher.tasks  # noqa: F401  (registers our tasks)
         if cfg.env_id not in gym.registry:
-            raise ConfigError(f"--task: unknown environment {cfg.env_id!r}{did_you_mean(cfg.env_id, OUR_TASKS)}")
+            raise ConfigError(f"--task: unknown environment {cfg.env_id!r}{did_you_mean(cfg.env_id, TASKS)}")
     return cfg
 
 

@@ -33,7 +33,6 @@ SIM_BACKENDS = ("physx_cpu", "physx_cuda")
 # experiment data (experiment/registry.py: PAPER_CHAIN), so a task added here joins no chain. A list: a task
 # registered at run time is appended (tests/test_registry.py).
 TASKS = ["ReachTarget-v1", "CloseBox-v1", "CloseMicrowave-v1"]
-OUR_TASKS = TASKS  # the name evaluate.py reads
 
 
 def check_device(device: str, what: Optional[str] = None) -> None:

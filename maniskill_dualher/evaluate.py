@@ -49,7 +49,7 @@ from typing import Dict, List, Optional, Sequence
 import numpy as np
 
 from .cli import OneLineParser, did_you_mean, old_flag
-from .config import OUR_TASKS, ConfigError, RunConfig
+from .config import TASKS, ConfigError, RunConfig
 from .envs import EVAL_SEED_BASE, BatchEnv, make_env
 from .fileio import plural
 from .movie import MOVIE_SUFFIXES, draw_movie, task_info
@@ -57,7 +57,7 @@ from .policy import Policy, load_policy
 
 ZERO_SHOT_CSV = "zero_shot.csv"
 RECORD_DIR = "runs/recordings"  # --record without DIR: under runs/ (.gitignore), never the checkout's top
-TASKS_MODULE = "maniskill_dualher.tasks"  # the module that registers OUR_TASKS (a recorded env id names it)
+TASKS_MODULE = "maniskill_dualher.tasks"  # the module that registers config.TASKS (a recorded env id names it)
 CONFIDENCE = 0.95
 # Held-out reset seeds: far from the training evaluations' EVAL_SEED_BASE + i and below 2**31 - 1 (ManiSkill's
 # seed range); training episodes (run_seed * 1_000_003 + episode) reach them only for run seeds near 2000.
@@ -150,7 +150,7 @@ def evaluate_policy(policy, env_id: Optional[str] = None, episodes: int = DEFAUL
     control_mode = getattr(env.unwrapped, "control_mode", None)
     try:
         if (movie is not None or record is not None) and not (env.spec.is_maniskill and hasattr(env.unwrapped, "goal_tolerance")):
-            raise ConfigError(f"--movie/--record need one of our ManiSkill tasks ({', '.join(OUR_TASKS)}), "
+            raise ConfigError(f"--movie/--record need one of our ManiSkill tasks ({', '.join(TASKS)}), "
                               f"not {target!r}")
         traj_name = None
         if record is not None:
@@ -224,7 +224,7 @@ def _replayable_json(path: Path) -> None:
         kw.pop("render_backend")
         changed = True
     env_id = info.get("env_id")
-    if env_id in OUR_TASKS:
+    if env_id in TASKS:
         info["env_id"] = f"{TASKS_MODULE}:{env_id}"
         changed = True
     if changed:
@@ -241,7 +241,7 @@ def finished_runs(folder) -> List[Path]:
 
 
 def zero_shot_matrix(folder, episodes: int = 10, seed: int = HELDOUT_SEED_BASE, best: bool = False,
-                     tasks: Sequence[str] = OUR_TASKS, progress=None) -> List[dict]:
+                     tasks: Sequence[str] = TASKS, progress=None) -> List[dict]:
     """Evaluate every finished run's policy under ``folder`` on every task; write ``folder/zero_shot.csv``
     (atomic) and return its rows (source run, source task, target task, success with its Wilson CI, ...).
     Runs on other envs (not our tasks) are skipped."""
@@ -397,8 +397,8 @@ def _known_env(env_id: str) -> None:
     import gymnasium as gym
     import maniskill_dualher.tasks  # noqa: F401  (registers our tasks)
     if env_id not in gym.registry:
-        raise ConfigError(f"unknown environment {env_id!r} (our tasks: {', '.join(OUR_TASKS)})"
-                          + did_you_mean(env_id, OUR_TASKS))
+        raise ConfigError(f"unknown environment {env_id!r} (our tasks: {', '.join(TASKS)})"
+                          + did_you_mean(env_id, TASKS))
 
 
 if __name__ == "__main__":

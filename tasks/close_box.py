@@ -89,6 +89,7 @@ class CloseBoxEnv(HingedPanelEnv):
 
     ANGLE_INFO_KEY = "lid_angle"
     goal_tolerance = chord_tolerance(LID_LENGTH, SUCCESS_ANGLE)
+    success_text = f"the box lid closed to within {SUCCESS_ANGLE:g} rad"
 
     def _geometry(self) -> HingedGeometry:
         hx, hy, h = self.BOX_DEPTH / 2, self.BOX_WIDTH / 2, self.BOX_HEIGHT

@@ -93,6 +93,7 @@ class CloseMicrowaveEnv(HingedPanelEnv):
 
     ANGLE_INFO_KEY = "door_angle"
     goal_tolerance = chord_tolerance(DOOR_LENGTH, SUCCESS_ANGLE)
+    success_text = f"the microwave door closed to within {SUCCESS_ANGLE:g} rad"
 
     def _geometry(self) -> HingedGeometry:
         hx, hy, hz = self.BODY_DEPTH / 2, self.BODY_WIDTH / 2, self.BODY_HEIGHT / 2

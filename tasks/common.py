@@ -67,7 +67,6 @@ from mani_skill.utils.scene_builder.table import TableSceneBuilder
 from mani_skill.utils.structs import Actor, Pose
 
 GOAL_DIM = 3
-ROBOT_QPOS_DIM = 9
 OBS_SLOTS = (  # (name, width) in order; the single source of the observation layout
     ("qpos", 9),
     ("qvel", 9),
@@ -285,6 +284,7 @@ class PandaGoalEnv(BaseEnv):
     SUPPORTED_REWARD_MODES = ("sparse", "dense", "normalized_dense", "none")  # sparse is the default
     agent: Panda
     goal_tolerance: float = 0.05
+    success_text: str = ""   # what success means, in words (a model card's "success is ..."; cards.success_text)
     GOAL_BOX_LOW: Optional[tuple] = None
     GOAL_BOX_HIGH: Optional[tuple] = None
 

@@ -37,6 +37,7 @@ class ReachTargetEnv(PandaGoalEnv):
     """
 
     goal_tolerance = 0.05
+    success_text = f"the gripper's tool centre point (TCP) within {goal_tolerance:g} m of the red ball"
     BALL_RADIUS = 0.02
     BALL_BOX_LOW = (-0.25, -0.25, 0.05)
     BALL_BOX_HIGH = (0.10, 0.25, 0.35)

@@ -7,6 +7,7 @@ import pytest
 
 from maniskill_dualher import cards
 from maniskill_dualher.analysis.stats import wilson
+from maniskill_dualher.experiment.registry import PAPER_CHAIN
 
 ROOT = Path(__file__).resolve().parents[1] / "results" / "policies"
 FOLDERS = sorted(p.parent for p in ROOT.glob("*/*/policy.pt"))
@@ -135,7 +136,7 @@ def test_export_of_an_adaptation_stage_takes_its_final_policy_and_chain(chain_sw
     doc = json.loads((folder / "policy.json").read_text())
     assert (folder / "policy.pt").read_bytes() == (run / "policy.pt").read_bytes()
     t = doc["transfer"]
-    assert t["chain"] == ["ReachTarget-v1", "CloseBox-v1", "CloseMicrowave-v1"] and t["policy"] == "final"
+    assert t["chain"] == list(PAPER_CHAIN) and t["policy"] == "final"
     assert t["stage_env_steps"] == [json.loads((p / "config.json").read_text())["total_steps"] for p in chain_sweep]
     assert t["preset"] == "smoke" and t["experiment"] == "transfer" and t["run"].endswith(run.name)
     assert (folder / "README.md").read_text() == cards.card_text(doc)

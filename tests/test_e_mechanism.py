@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from maniskill_dualher.config import ConfigError, RunConfig, SACConfig
+from maniskill_dualher.config import TASKS, ConfigError, RunConfig, SACConfig
 from maniskill_dualher.methods import make_method
 from maniskill_dualher.replay.base import Batch
 from maniskill_dualher.replay.buffer import Handle
@@ -212,7 +212,7 @@ def _e_off_case(method, task, tmp_path):
     return json.loads(r.stdout.strip().splitlines()[-1])
 
 
-@pytest.mark.parametrize("task", ["ReachTarget-v1", "CloseBox-v1", "CloseMicrowave-v1"])
+@pytest.mark.parametrize("task", TASKS)
 def test_ratio_one_zero_trains_bit_for_bit_like_sac_her_per(task, tmp_path):
     """Issue 39: E off (ratio 1/0) is SAC+HER+PER: the same metrics (every column both write, wall time
     aside) and the same weights (networks, optimizers, alpha; the saved actor) on the same seed. Each side

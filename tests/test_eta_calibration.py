@@ -3,6 +3,8 @@ test reads."""
 import json
 
 import pytest
+
+from maniskill_dualher.experiment.registry import PAPER_CHAIN
 from bench_cli import run_bench
 
 
@@ -26,7 +28,7 @@ def test_a_calibration_file_holds_what_the_eta_check_reads(tmp_path):
     assert r.returncode == 0, r.stderr[-2000:]
     doc = json.loads(out.read_text())
     smoke = doc["plans"]["smoke"]
-    assert set(smoke["step_s"]) == {"ReachTarget-v1", "CloseBox-v1", "CloseMicrowave-v1"}
+    assert set(smoke["step_s"]) == set(PAPER_CHAIN)   # the smoke plan's tasks: the paper's (the sweep's default)
     assert all(0 < v < 0.05 for v in smoke["step_s"].values()) and smoke["pack"] >= 1
     assert set(smoke["start_s"]) == set(smoke["step_s"]) and all(0 < v < 60 for v in smoke["start_s"].values())
     assert smoke["update_s"] and all(0 < v < 0.1 for v in smoke["update_s"].values())

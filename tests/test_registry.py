@@ -15,6 +15,7 @@ from maniskill_dualher.analysis.plots import color_of
 from maniskill_dualher.config import TASKS
 from maniskill_dualher.experiment import sweep
 from maniskill_dualher.experiment.grid import build_grid
+from maniskill_dualher.experiment.registry import PAPER_CHAIN, PAPER_TARGET, chain_name
 from maniskill_dualher.sweep import main as run_sweep, train_runs as entry_train_runs  # noqa: F401
 from maniskill_dualher.replay.base import Batch, Episode
 from maniskill_dualher.replay.her import episode_transitions
@@ -73,7 +74,7 @@ def test_a_registered_method_takes_part_everywhere(registered, tmp_path, monkeyp
     assert {r["method"] for r in single} == {"sac_her", "sac_her_per"}
     t5 = _rows(out / "table5_multitask.csv")
     assert {(r["experiment"], r["chain"]) for r in t5 if r["method"] == "sac_her"} == {
-        ("transfer", " > ".join(TASKS)), ("scratch", TASKS[-1])}
+        ("transfer", chain_name(PAPER_CHAIN)), ("scratch", PAPER_TARGET)}
     assert "SAC+HER" in labels and "SAC+HER, from scratch" in labels   # Fig. 4 and Fig. 5: display names
     assert color_of("sac_her") == "tab:green"
     assert "sac_her" in (out / "summary.md").read_text()
@@ -155,7 +156,6 @@ def tiny_task():
 def test_a_task_is_its_file_and_one_id_and_the_papers_chain_is_unchanged(tiny_task, tmp_path, monkeypatch):
     """With a task added to the catalog, the paper's plan is the same runs, on the paper's chain and target (its
     tables unchanged); the task itself plans, trains a few hundred steps and is reported with no other edit."""
-    from maniskill_dualher.experiment.registry import PAPER_CHAIN
     from maniskill_dualher.analysis import tables
 
     def plan(*argv):

@@ -16,9 +16,10 @@ import pytest
 
 from maniskill_dualher import report, staging
 from maniskill_dualher.analysis import claims as claims_mod
-from maniskill_dualher.config import TASKS, ReplayConfig, RunConfig
+from maniskill_dualher.config import ReplayConfig, RunConfig
+from maniskill_dualher.experiment.registry import PAPER_CHAIN, chain_name
 
-CHAIN = " > ".join(TASKS)
+CHAIN = chain_name(PAPER_CHAIN)
 
 
 def _write_run(folder: Path, cfg: RunConfig, successes, returns, cells, done=True, wall=1.0, start=False):
@@ -267,7 +268,7 @@ def test_an_arms_override_is_tagged_with_the_arm():
     from maniskill_dualher.analysis import hyperparameters
     cells = [{"experiment": e, "arm": a, "method": "dual_buffer", "task": t, "stage": s}
              for e, a in (("transfer", "paper"), ("warm_start", "warm_low_lr"), ("e_share", "r_starved"))
-             for s, t in enumerate(TASKS)]
+             for s, t in enumerate(PAPER_CHAIN)]
     hp = {r["hyperparameter"]: r for r in hyperparameters.hyperparameter_rows(
         hyperparameters.cell_configs(_smoke_definition(), cells))}
     assert hp["learning rate"]["ours_adaptation"] == "0.0001; 0.0003 (warm_start/warm_low_lr)"  # smoke: lr default
@@ -347,7 +348,7 @@ def _shipped(src: Path, dst: Path, sweep: dict) -> Path:
 SWEEP = {"preset": "reference", "budgets": {"single": {"CloseBox-v1": 200}, "source": {"CloseBox-v1": 300},
                                             "adapt": {"CloseMicrowave-v1": 300}, "default": 300},
          "preset_settings": [], "settings": [],
-         "task_order": list(TASKS), "carry_replay": True}
+         "task_order": list(PAPER_CHAIN), "carry_replay": True}
 
 
 def _provenance(folder: Path, model: str, bf16: bool) -> None:

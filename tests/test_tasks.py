@@ -23,10 +23,11 @@ from maniskill_dualher.tasks.common import (
     registered_task_ids,
     split_goal_obs,
 )
+from maniskill_dualher.config import TASKS
+from maniskill_dualher.experiment.registry import PAPER_CHAIN
 from maniskill_dualher.tasks.solvers import make_solver
 
 TASK_IDS = registered_task_ids()
-PAPER_TASKS = {"ReachTarget-v1", "CloseBox-v1", "CloseMicrowave-v1"}
 _ENVS = {}
 
 
@@ -70,8 +71,10 @@ def seeded_random_policy(env, seed):
 
 
 def test_tasks_registered():
-    assert "ReachTarget-v1" in TASK_IDS
-    assert set(TASK_IDS) <= PAPER_TASKS, f"unexpected task ids {set(TASK_IDS) - PAPER_TASKS}"
+    """The registered PandaGoalEnv tasks are the catalog (config.TASKS), which holds the paper's chain."""
+    assert set(TASK_IDS) == set(TASKS), f"registered, not in config.TASKS: {set(TASK_IDS) - set(TASKS)}; " \
+                                        f"in config.TASKS, not registered: {set(TASKS) - set(TASK_IDS)}"
+    assert set(PAPER_CHAIN) <= set(TASKS)
 
 
 def test_split_goal_obs_numpy_and_torch_any_leading_dims():

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from maniskill_dualher.config import ConfigError, ReplayConfig, RunConfig, SACConfig
+from maniskill_dualher.config import TASKS, ConfigError, ReplayConfig, RunConfig, SACConfig
 from maniskill_dualher.train import run_training
 
 
@@ -236,7 +236,7 @@ def test_sac_learns_pendulum(tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("task", ["ReachTarget-v1", "CloseBox-v1", "CloseMicrowave-v1"])
+@pytest.mark.parametrize("task", TASKS)
 def test_quick_preset_solves_every_task(tmp_path, task):
     """The quick preset's settings: sac_her_per reaches >= 0.9 evaluation success on every task within its
     single-task budget (measured, seed 0, AMD EPYC with AVX512-BF16: CloseBox 1.0 at 6k, CloseMicrowave 1.0 at 9k env steps)."""

@@ -11,8 +11,7 @@ from maniskill_dualher.methods import METHOD_SPECS
 
 PAPER_TABLE4 = {(0.6, 0.4): "250", (0.5, 0.5): "154", (0.7, 0.3): "<75"}   # successful CloseMicrowave attempts
 PAPER_TABLE5 = {"sac_her_per": "<45", "dual_buffer": "250"}                # same metric, ours at 0.6/0.4
-PAPER_TARGET = registry.PAPER_TARGET                  # CloseMicrowave (the chain is experiment data)
-PAPER_CHAIN = " > ".join(registry.PAPER_CHAIN)        # the chain as a cell names it: ReachTarget > ... > target
+PAPER_TARGET = registry.PAPER_TARGET                  # CloseMicrowave (the chain is experiment data: registry)
 PAPER_ADAPT_BUDGET = "120 epochs x 200 episodes x 150 steps = 3.6M env steps"
 PAPER_ADAPT_STEPS = 120 * 200 * 150
 PAPER_TABLE3 = [  # (hyperparameter, paper value, how to read ours from a RunConfig)

@@ -15,7 +15,7 @@ import numpy as np
 from ..config import TASKS, format_ratio
 from ..experiment import registry
 from ..methods import METHOD_SPECS
-from .paper import PAPER_CHAIN, PAPER_TABLE4, PAPER_TABLE5, PAPER_TARGET
+from .paper import PAPER_TABLE4, PAPER_TABLE5, PAPER_TARGET
 from .stats import mean_ci, rate_ci  # noqa: F401  (the intervals; evaluate.py reads mean_ci here too)
 
 TABLE_COLUMNS = ["experiment", "arm", "task", "chain", "method", "variant", "role", "metric", "n_seeds", "seeds",
@@ -53,7 +53,7 @@ def paper_number(key: tuple, metric: str) -> str:
     """The paper's number beside a row of its chain and target: Table 4 for an experiment feeding
     table4_sampling_ratio.csv, Table 5 for a chain experiment feeding table5_multitask.csv."""
     exp, arm, task, chain, method, variant, role = key
-    if task != PAPER_TARGET or chain != PAPER_CHAIN or metric != "successful_train_episodes" or role != "adapt":
+    if task != PAPER_TARGET or chain != registry.chain_name(registry.PAPER_CHAIN) or metric != "successful_train_episodes" or role != "adapt":
         return ""
     fed = registry.feeds_of(exp, arm)
     if registry.TABLE4_CSV in fed:

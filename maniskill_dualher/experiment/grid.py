@@ -24,7 +24,7 @@ from ..methods import method_spec
 from ..rundir import RUNS_DIR
 from . import overrides, protocol
 from .presets import HER_K_MULTITASK, Preset, cell_key
-from .registry import Arm, Experiment, experiment
+from .registry import Arm, Experiment, chain_name, experiment
 
 
 @dataclass
@@ -213,7 +213,7 @@ def build_grid(d: dict) -> List[Node]:
                     stages = chain_configs(p, exp, settings, user, method, seed, d["task_order"],
                                            arm.adapt_steps_factor, arm.prior_method)
                     protocol.validate_chain(stages)
-                    chain = " > ".join(s.env_id for s in stages)
+                    chain = chain_name(s.env_id for s in stages)
                     parent = None
                     for i, cfg in enumerate(stages):
                         # a chain lives under its prior's method: a shared prior's stages are that method's runs

@@ -23,7 +23,7 @@ task added there joins no chain.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Dict, Optional, Tuple, Union
+from typing import Dict, Iterable, Optional, Tuple, Union
 
 from ..config import ConfigError
 from ..methods import METHOD_SPECS
@@ -34,6 +34,12 @@ PAPER_ARM = "paper"
 # TRANSFER_ORDER, the sweep's --task-order default, the paper's target and its chain in the tables read it.
 PAPER_CHAIN: Tuple[str, ...] = ("ReachTarget-v1", "CloseBox-v1", "CloseMicrowave-v1")
 PAPER_TARGET = PAPER_CHAIN[-1]
+
+
+def chain_name(tasks: Iterable[str]) -> str:
+    """A chain as its cells name it (``cell.json``'s, ``scores.csv``'s and the tables' ``chain`` column):
+    its tasks joined by " > ", e.g. ``chain_name(PAPER_CHAIN)``; a scratch run's chain is its one task."""
+    return " > ".join(tasks)
 
 # What an experiment or arm can feed: the report's tables and figures (file names), and the panel of one.
 SINGLE_TASK_CSV, TABLE4_CSV, TABLE5_CSV, ABLATIONS_CSV, BUDGET_CSV = (
