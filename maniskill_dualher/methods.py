@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import importlib
 from dataclasses import dataclass
-from typing import Dict, List, Tuple
+from typing import Dict, List, Tuple, Union
 
 import numpy as np
 
@@ -30,9 +30,13 @@ class MethodSpec:
     transfer: bool = True     # runs the transfer chain (paper Fig. 5 / Table 5) and the scratch control
     sampling_ratio: bool = False  # replay.ratio matters: the ratio study varies it; it tags folders and rows
     adopts: Tuple[str, ...] = ()  # other methods whose prior (networks and replay) it can adapt from
-    linestyle: str = ":"      # matplotlib line style, the same in every figure (tells two methods of one arm apart)
+    linestyle: Union[str, tuple] = ":"  # matplotlib line style (a name or a dash pattern), the same in every figure (tells two methods of one arm apart)
     marker: str = "D"         # matplotlib marker, the same in every figure
     paper: bool = False       # the paper's method: listed first in the aggregate figure (P(it > each other))
+    # joins the experiments that take every method ("all", "transfer", "sampling_ratio") and a sweep's default
+    # --methods; False: only experiments that name it, so adding it leaves every default sweep (and its folder's
+    # sweep.json, which a resumed sweep must match) as it was
+    default: bool = True
 
     def tag(self, cfg: RunConfig) -> str:
         """The settings that tell this method's runs apart in folder names and table rows ('' if none)."""
@@ -50,6 +54,10 @@ METHOD_SPECS: Dict[str, MethodSpec] = {s.name: s for s in (
                linestyle="--", marker="s"),
     MethodSpec("dual_buffer", "maniskill_dualher.dual_buffer:DualBufferReplay", "dual buffer", "tab:orange",
                sampling_ratio=True, adopts=("sac_her_per",), linestyle="-", marker="o", paper=True),
+    MethodSpec("mixed_batch", "maniskill_dualher.baselines.mixed_batch:MixedBatchReplay", "mixed batches (RLPD)",
+               "#008b8b", adopts=("sac_her_per",), linestyle=(0, (5, 1)), marker="v", default=False),
+    MethodSpec("success_bonus", "maniskill_dualher.baselines.success_bonus:SuccessBonusReplay",
+               "success bonus (DDPGfD)", "#c71585", linestyle=(0, (3, 1, 1, 1)), marker="P", default=False),
 )}
 
 

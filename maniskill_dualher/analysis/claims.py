@@ -24,7 +24,10 @@ RATE_MARGIN = 0.1      # success rates and sparse returns per episode (in [0, 1]
 COUNT_MARGIN = 0.1     # counts and env steps: 10% of the larger side's mean
 FAMILIES = {"paper": "the paper's claims (a)-(h')", "ablation": "the ablations",   # Holm/BH families
             "updates": "total updates vs R's share (defined before its runs)",
-            "paper_regime": "the paper's own regime (preregistered: results/paper_regime/PREREGISTRATION.md)"}
+            "paper_regime": "the paper's own regime (preregistered: results/paper_regime/PREREGISTRATION.md)",
+            "relatives": "the dual buffer's relatives (defined before their runs)"}
+RELATIVES = {"mixed_batch": "mixed batches (RLPD)", "success_bonus": "the success bonus (DDPGfD)"}
+OTHER_LABEL = {"dual_buffer": "the dual buffer", "sac_her_per": "SAC+HER+PER"}
 
 
 @dataclass(frozen=True)
@@ -290,6 +293,16 @@ CLAIMS: List[Claim] = [
           ("count", N, "successful adaptation episodes", "Table 5: 250 vs <45 (of 24,000)"),
           ("final", "final_eval_success_rate", "final evaluation success", ""),
           ("curve", S, "mean evaluation success over the curve", "Fig. 5: dual buffer's curve above"))],
+    # ------------------------------------------------------------------ the dual buffer's relatives
+    # Defined with experiments relatives and relatives_scratch, before any of their runs: does a relative beat the
+    # dual buffer, and SAC+HER+PER, on the count the paper reports? From scratch the sides pair by seed (one CPU
+    # kind, one sweep); in adaptation each method adapts after its own chain (unpaired).
+    *[Claim(f"rel_{where}_{rel}_vs_{other}", f"{what}, {rel} > {other}: successful episodes", "", N,
+            Side(exp, "paper", rel), Side(exp, "paper", other), relative_margin=True, group="relatives",
+            explains=f"{what}, {label} minus {OTHER_LABEL[other]} is")
+      for where, exp, what in (("adapt", "relatives", "in adaptation after each method's own chain"),
+                               ("scratch", "relatives_scratch", "from scratch"))
+      for rel, label in RELATIVES.items() for other in (DUAL, HER)],
 ]
 
 CLAIM_COLUMNS = ["claim", "group", "statement", "paper", "metric", "side_a", "side_b", "n_a", "n_b", "mean_a",

@@ -172,7 +172,8 @@ def summary_md(name: str, sweep: Optional[dict], scores, tables, claims, figures
               "than of B's; `machines_by_side` in `claims.csv`): " + ", ".join(unbalanced) + ".", ""]
     for group, title in (("paper", "The paper's claims"), ("ablation", "Why: ablations of the adaptation stage"),
                          ("updates", "Total updates vs R's share (defined before their runs)"),
-                         ("paper_regime", "The paper's own regime (preregistered)")):
+                         ("paper_regime", "The paper's own regime (preregistered)"),
+                         ("relatives", "The dual buffer's relatives (defined before their runs)")):
         rows = [r for r in claims if r["group"] == group]
         if rows:
             s += [f"### {title}", ""] + claims_md(rows) + [""]

@@ -122,12 +122,13 @@ class Experiment:
                                   f"feeds=(...) from {', '.join(fits)}")
 
     def method_names(self) -> Tuple[str, ...]:
+        """The experiment's methods: those it names, or the registry's that join a group (``MethodSpec.default``)."""
         if self.methods == "all":
-            return tuple(METHOD_SPECS)
+            return tuple(m for m, s in METHOD_SPECS.items() if s.default)
         if self.methods == "transfer":
-            return tuple(m for m, s in METHOD_SPECS.items() if s.transfer)
+            return tuple(m for m, s in METHOD_SPECS.items() if s.transfer and s.default)
         if self.methods == "sampling_ratio":
-            return tuple(m for m, s in METHOD_SPECS.items() if s.sampling_ratio)
+            return tuple(m for m, s in METHOD_SPECS.items() if s.sampling_ratio and s.default)
         return tuple(m for m in self.methods if m in METHOD_SPECS)
 
     def arm_methods(self, arm: Arm) -> Tuple[str, ...]:
@@ -186,6 +187,9 @@ PAPER_REGIME_SETTINGS = (
     "adapt.eval_every=30000", "adapt.eval_episodes=10",
     "adapt.checkpoint_every=300000",      # resume granularity: 10 epochs (~5 min of a run on CPU B)
 )
+
+# the dual buffer, SAC+HER+PER and the two relatives (registered with default=False: only experiments naming them)
+RELATIVES = ("sac_her_per", "dual_buffer", "mixed_batch", "success_bonus")
 
 EXPERIMENTS: Dict[str, Experiment] = {e.name: e for e in (
     # ------------------------------------------------------------------ the paper's experiments
@@ -307,6 +311,18 @@ EXPERIMENTS: Dict[str, Experiment] = {e.name: e for e in (
             doc="4x the adaptation budget and Algorithm 1's schedule: one update per finished episode",
             display="4× adaptation budget, one update per episode"),
     ), max_seeds=6),
+
+    # ------------------------------------------------------------------ the dual buffer's relatives
+    # Defined, with the `relatives` claims family, before any of their runs. All four methods run in one sweep on
+    # one CPU kind, so from-scratch sides pair by seed and no side carries another machine's physics.
+    Experiment("relatives", "The dual buffer's relatives in adaptation: mixed batches (RLPD), a success bonus in "
+               "one prioritized R (DDPGfD)", "chain", methods=RELATIVES,
+               doc="does per-batch mixing, or a success bonus inside one buffer, keep what E was meant to give "
+                   "without starving R? each method adapts after its own chain", arms=(
+        Arm(PAPER_ARM, doc="the paper's chain, replay carried, HER k = 8, as transfer's"),)),
+    Experiment("relatives_scratch", "The dual buffer's relatives from scratch", "scratch", methods=RELATIVES,
+               doc="the same four methods on the last task from scratch (adaptation budget and settings)", arms=(
+        Arm(PAPER_ARM, display="from scratch"),)),
 )}
 
 

@@ -75,6 +75,13 @@ def _pick(text: str, allowed: Sequence[str], what: str) -> List[str]:
     return items
 
 
+def _default_methods(experiments: Optional[str]) -> List[str]:
+    """Without --methods: the registry's default methods and those the selected experiments name (in registry
+    order), so a method registered with ``default=False`` changes no other sweep's definition."""
+    named = {m for x in _experiments(experiments) for m in EXPERIMENTS[x.partition(":")[0]].method_names()}
+    return [m for m, s in METHOD_SPECS.items() if s.default or m in named]
+
+
 def _experiments(text: Optional[str]) -> List[str]:
     """Experiment names, groups (default, ablations, all), or NAME:ARM+ARM for some of an experiment's arms."""
     if not text or text == "default":
@@ -127,7 +134,7 @@ def definition_from_args(a: argparse.Namespace) -> dict:
         "preset": a.preset,
         "experiments": _experiments(a.experiments),
         "tasks": tasks,
-        "methods": _pick(a.methods, list(METHOD_SPECS), "method") if a.methods else list(METHOD_SPECS),
+        "methods": _pick(a.methods, list(METHOD_SPECS), "method") if a.methods else _default_methods(a.experiments),
         "seeds": list(seeds),
         "chain_seeds": list(chain_seeds),
         "task_order": order,
