@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 from maniskill_dualher import rundir
+from maniskill_dualher.methods import METHOD_SPECS
 from maniskill_dualher.config import ReplayConfig, RunConfig, SACConfig
 from maniskill_dualher.experiment.registry import PAPER_CHAIN, PAPER_TARGET, chain_name
 from maniskill_dualher.experiment import protocol, sweep
@@ -446,7 +447,7 @@ def test_run_transfer_chains_networks_and_replay(tmp_path):
     (["--preset", "Quick"], "invalid choice: 'Quick' (choose from 'smoke', 'quick'"),
     (["--source-steps", "0"], "--source-steps must be >= 1, got 0"),
     (["--steps", "300"], "--steps is not a flag here: the single-task and source-stage budget is --source-steps N"),
-    (["--methods", "dual_bufer"], "unknown method 'dual_bufer' (choose from sac, sac_her_per, dual_buffer) "
+    (["--methods", "dual_bufer"], f"unknown method 'dual_bufer' (choose from {', '.join(METHOD_SPECS)}) "
                                   "(did you mean dual_buffer?)"),
     (["--tasks", "ClosBox-v1"], "(did you mean CloseBox-v1?)"),
     (["--preset", "quik"], "(did you mean quick?)"),

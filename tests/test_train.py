@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 
 from maniskill_dualher.config import TASKS, ConfigError, ReplayConfig, RunConfig, SACConfig
+from maniskill_dualher.methods import METHOD_SPECS
 from maniskill_dualher.train import run_training
 
 
@@ -159,7 +160,8 @@ def test_cli_bad_input_is_one_line(tmp_path, args, needle):
     (["--set", "total_steps=0"], "total_steps must be > 0"),  # given as a --set key: named as typed
     (["--eval-every", "0"], "--eval-every, --eval-episodes and --checkpoint-every must be >= 1"),
     (["--steps", "50"], "--steps is not a flag here: the whole run is --total-steps N"),
-    (["--method", "dual_bufer"], "(choose from 'sac', 'sac_her_per', 'dual_buffer') (did you mean dual_buffer?)"),
+    (["--method", "dual_bufer"], f"(choose from {', '.join(repr(m) for m in METHOD_SPECS)}) (did you mean "
+                                 "dual_buffer?)"),
     (["--variant", "modrn"], "(did you mean modern?)"),
     (["--task", "ClosBox-v1"], "--task: unknown environment 'ClosBox-v1' (did you mean CloseBox-v1?)"),
     (["--totl-steps", "5"], "unrecognized arguments: --totl-steps 5 (did you mean --total-steps?)"),
