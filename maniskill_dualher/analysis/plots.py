@@ -32,6 +32,7 @@ from ..experiment.registry import EXPERIMENTS, KINDS, PAPER_ARM, PAPER_CHAIN, is
 from ..fileio import atomic_write_with, steps_text
 from ..methods import METHOD_SPECS
 from . import stats
+from .regime import RANDOM_ARM
 
 SINGLE_KIND, CHAIN_KIND, SCRATCH_KIND = KINDS
 LEVEL = 0.95
@@ -367,16 +368,20 @@ def plot_ablation(curves, path: Path, experiment: str) -> bool:
     # drawn last to first, so the first listed (the paper's settings; a shorter budget, whose runs are the first
     # steps of a longer one's) lie on top; the legend keeps the listed order
     on_top = dict(reversed(list(groups.items())))
-    draw(axes[0], on_top, "eval_success_rate", "evaluation success", "success rate", rate=True)
+    # the random arm never updates, so its evaluation is its untouched prior's: not a curve of random actions
+    chance = {cell_label(*k) for k in cells if k[1] == RANDOM_ARM}
+    draw(axes[0], {k: v for k, v in on_top.items() if k not in chance}, "eval_success_rate", "evaluation success",
+         "success rate", rate=True)
     draw(axes[1], on_top, "train_successes", "successful training episodes", "cumulative")
-    handles, labels = axes[0].get_legend_handles_labels()
+    handles, labels = axes[1].get_legend_handles_labels()
     place = {lab: i for i, lab in enumerate(groups)}
     pairs = sorted(zip(handles, labels), key=lambda hl: place.get(hl[1].rsplit(" (n=", 1)[0], len(place)))
     ncol = 2 if max(len(x) for x in groups) <= LEGEND_TWO_COLUMNS else 1
     fig.legend([h for h, _ in pairs], [lab for _, lab in pairs], loc="upper center", bbox_to_anchor=(0.5, 0.0),
                ncol=ncol, frameon=False)
     title = experiment_label(experiment)
-    note = "mean over seeds, 95% bootstrap band; line style: method"
+    note = "mean over seeds, 95% bootstrap band; line style: method" + (
+        "; uniform-random actions: training episodes only" if chance else "")
     fig.suptitle(f"{title}\n{note}", fontsize=9.5)
     fig.tight_layout()
     save_figure(fig, path)

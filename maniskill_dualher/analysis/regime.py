@@ -93,7 +93,7 @@ def regime_rows(curves: Sequence[Dict[str, str]]) -> List[dict]:
             e3 = sum(_at(p, budget)[1] - _at(p, third)[1] for p in by_run.values())
             row["last_third_success_rate"] = s3 / e3 if e3 else ""
             n_eval = _eval_episodes(exp, arm)
-            if n_eval:
+            if n_eval and arm != RANDOM_ARM:   # the random arm's evaluation is its untouched prior's, not chance's
                 k = int(round(sum(v * n_eval for _, v in final[(arm, method)].values())))
                 n = n_eval * len(by_run)
                 row.update({"final_eval_successes": k, "final_eval_episodes": n,
@@ -115,7 +115,8 @@ def summary_lines(rows: Sequence[dict]) -> List[str]:
          "The `random` arm acts uniformly at random for the whole adaptation budget and never updates; every "
          "other cell's successful training episodes (mean over seeds, per window of env steps), its training "
          "success rate over the last third of the budget, and its final evaluation pooled over seeds (with the "
-         "exact 95% upper bound of that rate) stand beside it. Descriptive: no verdict is read from this table.",
+         "exact 95% upper bound of that rate) stand beside it (the random arm's evaluation is its untouched "
+         "prior's, so none is given). Descriptive: no verdict is read from this table.",
          "", "| arm | method | n | successful episodes (mean) | " + " | ".join(heads)
          + " | success rate, all | last third | final evaluation, pooled (95% upper bound) |",
          "|---" * (7 + len(heads)) + "|"]
