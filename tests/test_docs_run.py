@@ -20,7 +20,7 @@ NOT_RUN = {
         "installs packages",
     "README.md: import gymnasium as gym":
         "run as written by tests/test_readme.py::test_load_policy_snippet_runs_as_written",
-    "README.md: python -m maniskill_dualher.sweep --experiments single --tasks ReachTarget-v1 --seeds 3 --out "
+    "README.md: python -m maniskill_dualher.sweep --experiments single --tasks ReachTarget-v1 --seeds 5 --out "
     "runs/first   # ~5 min, claim (e)":
         "sweeps of minutes to hours (the smoke sweep is tests/test_sweep.py's); the report reads their runs/quick",
     "docs/experiments.md: python -m maniskill_dualher.sweep --preset smoke --out /tmp/smoke      # whole pipeline, "
