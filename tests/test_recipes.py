@@ -11,7 +11,6 @@ import json
 import re
 import shutil
 from pathlib import Path
-from typing import Optional
 
 import pytest
 
@@ -22,29 +21,15 @@ from maniskill_dualher.experiment import cost, registry, sweep
 from maniskill_dualher.experiment.grid import build_grid
 from maniskill_dualher.experiment.presets import PRESETS
 from maniskill_dualher.experiment.registry import PAPER_CHAIN
-from maniskill_dualher.replay.base import Batch, Episode
-from maniskill_dualher.replay.her import episode_transitions
-from maniskill_dualher.replay.method import BufferMethod
+
+from test_registry import SACHerReplay
 
 REFERENCE = Path(__file__).resolve().parents[1] / "results" / "reference"
 NEW_METHOD, NEW_TASK, NEW_EXPERIMENT, NEW_CLAIM = "recipe_sac_her", "RecipeReach-v1", "recipe", "recipe_claim"
 
 
-# --------------------------------------------------------------------------- the whole file of a new method
-class RecipeSACHerReplay(BufferMethod):
-    """SAC + HER with uniform replay: the method a researcher adds in an afternoon."""
-    uses_goals = True
-
-    def __init__(self, cfg, spec, rng, device="cpu"):
-        super().__init__(cfg, spec, rng, device)
-        self._buffer("R", prioritized=False)
-
-    def add_episode(self, ep: Episode) -> None:
-        self._check_goal_episode(ep)
-        self.main.add(episode_transitions(ep, self.rcfg.her_strategy, self.rcfg.her_k, self.rng, self.reward_fn))
-
-    def sample(self, batch_size: Optional[int] = None) -> Batch:
-        return self.main.sample(batch_size or self.batch_size, self.rng, self.device)
+# the whole file of a new method: test_registry's SAC + HER with uniform replay, registered here under its own name
+RecipeSACHerReplay = SACHerReplay
 
 
 def _plan(*argv):
