@@ -76,6 +76,30 @@ def test_the_estimate_grows_with_capacity_and_her_k():
     assert run_memory(_cfg("dual_buffer", steps=100_000, capacity=1_000_000)).rows == {"R": 500_000, "E": 100_000}
 
 
+def test_the_dual_buffers_E_is_estimated_at_one_row_per_full_length_episode_and_planned_at_its_bound():
+    """E keeps real reward-1 rows; an episode that ends at its first success stores one. The dry run's estimate
+    counts one per full-length episode, the plan fits the bound (one per env step); other settings keep the bound."""
+    cfg = _cfg("dual_buffer", steps=150_000, capacity=1_000_000)
+    cfg.max_episode_steps, cfg.terminate_on_success = 150, True
+    mem = run_memory(cfg)
+    assert mem.rows == {"R": 750_000, "E": 150_000} and mem.typical_rows == {"R": 750_000, "E": 1_000}
+    assert mem.estimate == mem.peak - 149_000 * mem.row_bytes["E"]
+    lines = cost.describe_memory([mem], plan_memory([mem], 1, 1, None, "test"))
+    assert "E 1,000 rows" in lines[0] and "at most" in lines[0] and "E 150,000 rows" in lines[0]
+    for change in (dict(terminate_on_success=False), dict(max_episode_steps=None)):
+        other = _cfg("dual_buffer", steps=150_000, capacity=1_000_000)
+        other.max_episode_steps, other.terminate_on_success = 150, True
+        for k, v in change.items():
+            setattr(other, k, v)
+        assert run_memory(other).typical_rows is None and run_memory(other).estimate == run_memory(other).peak
+    episodes = _cfg("dual_buffer", steps=150_000, capacity=1_000_000)
+    episodes.max_episode_steps, episodes.replay.success_buffer = 150, "episodes"  # a successful episode's every row
+    assert run_memory(episodes).typical_rows is None
+    her = _cfg(steps=150_000, capacity=1_000_000)  # one buffer at its bound: nothing typical to add
+    assert run_memory(her).typical_rows is None and "at most" not in cost.describe_memory(
+        [run_memory(her)], plan_memory([run_memory(her)], 1, 1, None, "test"))[0]
+
+
 def test_a_carried_stage_counts_its_parents_rows_and_reads_them_at_its_start():
     source, adapt = _cfg(steps=100_000, her_k=8), _cfg(steps=50_000, her_k=8)
     alone = run_memory(adapt)

@@ -926,3 +926,27 @@ def test_a_dry_run_reads_any_folder_and_names_its_out(tmp_path, capsys):
     assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
     assert run_sweep(args) == 2 and "holds a different sweep" in capsys.readouterr().err
     assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
+
+
+def test_sweep_json_records_each_arms_settings_as_run_and_an_older_folder_without_them_is_the_same_sweep(tmp_path):
+    """sweep.json's arms_as_run: per arm, role and task, the budget and every setting the arm names, read from the
+    runs' configs (the paper regime's adaptation: 3.6M env steps, whatever the preset's budgets say); the record
+    decides no run, so a folder written before it existed is the same sweep, not refused."""
+    out = tmp_path / "o"
+    args = ["--preset", "smoke", "--experiments", "paper_regime", "--chain-seeds", "3,", "--out", str(out)]
+    assert run_sweep([*args, "--emit-commands", str(tmp_path / "cmd.txt")]) == 0
+    d = json.loads((out / rundir.SWEEP).read_text())
+    arms = d[sweep.ARMS_AS_RUN]
+    for arm, schedule in (("step", "step"), ("episode", "episode")):
+        adapt = arms[f"paper_regime/{arm}"]["adapt"][PAPER_TARGET]
+        assert adapt["total_steps"] == 3_600_000 and adapt["sac.update_schedule"] == schedule
+        assert adapt["replay.capacity"] == "10000000" and adapt["replay.her_k"] == "8"
+    assert arms["paper_regime/random"]["adapt"][PAPER_TARGET]["sac.learning_starts"] == "3600000"
+    assert d["budgets"]["adapt"][PAPER_TARGET] != 3_600_000  # the preset's budget: not what these arms ran
+    older = {k: v for k, v in d.items() if k != sweep.ARMS_AS_RUN}
+    (out / rundir.SWEEP).write_text(json.dumps(older))
+    assert run_sweep([*args, "--emit-commands", str(tmp_path / "cmd2.txt")]) == 0
+    assert json.loads((out / rundir.SWEEP).read_text())[sweep.ARMS_AS_RUN] == arms
+    other = sweep.definition_from_args(sweep.make_parser().parse_args([*args[:-2], "--set", "sac.lr=0.5"]))
+    with pytest.raises(Exception, match="differs in: settings"):
+        sweep.check_out_folder(out, {**other, "runs": d["runs"]}, force=False)

@@ -17,7 +17,9 @@ the measured wall times they are checked against (tests/test_sweep.py). The repo
 counted. On CPU simulation the workers share the machine's cores; a Ray cluster's cost is the core-hours.
 
 Memory, per run: its replay at its end (each buffer min(capacity, the rows its env steps offer it: x (1 + her_k)
-for R of the HER methods, x 1 for SAC's and for the dual buffer's E, an upper bound on its real reward-1 rows),
+for R of the HER methods, x 1 for SAC's and for the dual buffer's E, an upper bound on its real reward-1 rows;
+the estimate the dry run prints takes a method's ``replay_typical`` instead where lower: E one row per full-length
+episode, as episodes end at their first success),
 the rows of the earlier chain stages it carries counted in) x bytes per row (``replay_row_bytes``: the transition's
 floats, the sum tree's, the method's own per-row arrays), its networks with their gradients and Adam moments
 (``network_bytes``), and, while it starts from a replay (a carried parent's, or its own checkpoint on a resume),
@@ -332,6 +334,9 @@ class RunMemory:
     row_bytes: Dict[str, int]     # bytes per row of each buffer
     network_bytes: int
     loaded_bytes: int = 0         # a replay read from a file at its start (held twice while it loads)
+    # rows and replay read at the start in a typical run (``replay_typical``), where below the bound; None: as above
+    typical_rows: Optional[Dict[str, int]] = None
+    typical_loaded_bytes: Optional[int] = None
 
     @property
     def replay_bytes(self) -> int:
@@ -347,8 +352,16 @@ class RunMemory:
         """Alone in a worker: the process, its replay and networks, and a replay being loaded."""
         return PROCESS_BYTES + self.resident + self.loaded_bytes
 
-    def explain(self) -> str:
-        parts = [f"{k} {self.rows[k]:,} rows x {self.row_bytes[k]} B" for k in self.rows]
+    @property
+    def estimate(self) -> int:
+        """Alone in a worker, as a typical run fills its buffers (``peak`` is the bound the plan fits)."""
+        rows = self.typical_rows if self.typical_rows is not None else self.rows
+        loaded = self.typical_loaded_bytes if self.typical_loaded_bytes is not None else self.loaded_bytes
+        return PROCESS_BYTES + sum(rows[k] * self.row_bytes[k] for k in rows) + self.network_bytes + loaded
+
+    def explain(self, typical: bool = False) -> str:
+        rows = self.typical_rows if typical and self.typical_rows is not None else self.rows
+        parts = [f"{k} {rows[k]:,} rows x {self.row_bytes[k]} B" for k in rows]
         text = f"replay {' + '.join(parts)}, networks {_size(self.network_bytes)}"
         if self.loaded_bytes:
             text += f", {_size(self.loaded_bytes)} of replay read at its start"
@@ -364,19 +377,29 @@ def run_memory(cfg, carried: Sequence = (), resume: bool = False, obs_dim: int =
     cls = method_spec(cfg.method).load()
     layout = getattr(cls, "replay_layout", None) or (  # a method without the hook: one prioritized buffer
         lambda c: {"R": (1.0 + (c.replay.her_k if getattr(cls, "uses_goals", False) else 0), True, 0)})
+    typical = getattr(cls, "replay_typical", None) or (lambda c: {k: v[0] for k, v in layout(c).items()})
     cap = int(cfg.replay.capacity)
     rows: Dict[str, int] = {}
     before: Dict[str, int] = {}
     sizes: Dict[str, int] = {}
+    t_rows: Dict[str, int] = {}
+    t_before: Dict[str, int] = {}
     for name, (per_step, prioritized, extra) in layout(cfg).items():
         # the carried stages' rows as this method would hold them: their env steps at their settings (her_k)
         old = sum(s.total_steps * layout(s).get(name, (1.0,))[0] for s in carried)
         before[name] = min(cap, int(math.ceil(old)))
         rows[name] = min(cap, int(math.ceil(old + cfg.total_steps * per_step)))
         sizes[name] = replay_row_bytes(obs_dim, act_dim, prioritized, extra)
+        t_old = sum(s.total_steps * min(typical(s).get(name, 1.0), layout(s).get(name, (1.0,))[0]) for s in carried)
+        t_before[name] = min(before[name], int(math.ceil(t_old - 1e-6)))  # 1/150 * 150k is 1000.0000001
+        t_rows[name] = min(rows[name], int(math.ceil(t_old + cfg.total_steps * min(typical(cfg)[name], per_step) - 1e-6)))
     mem = RunMemory(label or f"{cfg.method} {cfg.env_id}", rows, sizes, network_bytes(cfg.sac, obs_dim, act_dim))
     at_start = rows if resume else before
     mem.loaded_bytes = sum(at_start[k] * sizes[k] for k in rows)
+    if t_rows != rows:
+        mem.typical_rows = t_rows
+        t_start = t_rows if resume else t_before
+        mem.typical_loaded_bytes = sum(t_start[k] * sizes[k] for k in rows)
     return mem
 
 
@@ -456,13 +479,19 @@ def plan_memory(mems: Sequence[RunMemory], workers: int, pack: int,
 def describe_memory(mems: Sequence[RunMemory], plan: MemoryPlan) -> List[str]:
     if not mems:
         return []
-    big = max(mems, key=lambda m: m.peak)
-    small = min(m.peak for m in mems)
-    span = _size(big.peak) if small == big.peak else f"{_size(small)} to {_size(big.peak)}"
+    big = max(mems, key=lambda m: m.estimate)
+    small = min(m.estimate for m in mems)
+    span = _size(big.estimate) if small == big.estimate else f"{_size(small)} to {_size(big.estimate)}"
     avail = "unknown" if plan.available is None else f"{_size(plan.available)} ({plan.source})"
-    return [f"estimated peak memory (an estimate, not a measurement): one run {span} (the largest: {big.explain()}); "
-            f"the sweep with {plan.workers} worker{'s' if plan.workers > 1 else ''} x up to {plan.pack} "
-            f"run{'s' if plan.pack > 1 else ''} each at once: {_size(plan.peak)}; available: {avail}"]
+    worst = max(mems, key=lambda m: m.peak)
+    bound = ""
+    if worst.peak != big.estimate:  # a buffer typically holds far fewer rows than its bound (the dual buffer's E)
+        bound = (f"; at most {_size(worst.peak)} if every buffer fills to its bound ({worst.explain()}), which the "
+                 f"plan fits")
+    return [f"estimated peak memory (an estimate, not a measurement): one run {span} (the largest: "
+            f"{big.explain(typical=True)}){bound}; the sweep with {plan.workers} worker{'s' if plan.workers > 1 else ''}"
+            f" x up to {plan.pack} run{'s' if plan.pack > 1 else ''} each at once: {_size(plan.peak)}; available: "
+            f"{avail}"]
 
 
 def _size(b: float) -> str:

@@ -18,7 +18,7 @@ import re
 import shlex
 import sys
 from pathlib import Path
-from typing import Callable, List, Optional, Sequence, Tuple
+from typing import Callable, Dict, List, Optional, Sequence, Tuple
 
 from .. import rundir
 from ..cmdline import OneLineParser, did_you_mean, missing_package, old_flag
@@ -185,6 +185,38 @@ def file_settings(path: str) -> List[str]:
     return flat(read_config_file(path), "", "")
 
 
+# sweep.json's record of each arm's settings as its runs were built: derived from the definition (so it decides no
+# run and is left out of the comparison that refuses another sweep's folder; folders from before it lack it)
+ARMS_AS_RUN = "arms_as_run"
+
+
+def arms_as_run(nodes: List[Node]) -> dict:
+    """Per ``experiment/arm`` and role (``single``, ``source``, ``adapt``): each task's budget in env steps and the
+    value, as the runs were configured, of every setting the arm names -> {"paper_regime/step": {"adapt":
+    {"CloseMicrowave-v1": {"total_steps": 3600000, "sac.update_schedule": "step", ...}}}}. Where the runs of one
+    arm, role and task differ in such a value (none do today) it lists each value, sorted."""
+    record: Dict[str, Dict[str, Dict[str, Dict[str, list]]]] = {}
+    for n in nodes:
+        cfg = n.cfg.to_dict()
+        for c in n.cells:
+            exp = EXPERIMENTS.get(c["experiment"])
+            arm = next((x for x in exp.arms if x.name == c["arm"]), None) if exp else None
+            if arm is None:
+                continue
+            keys = ["total_steps"] + [o.path for o in overrides.parse_all(arm.settings)
+                                      if o.applies_to(c.get("stage"), c.get("n_stages") or 1)]
+            at = record.setdefault(f"{exp.name}/{arm.name}", {}).setdefault(c["role"], {}).setdefault(c["task"], {})
+            for k in dict.fromkeys(keys):
+                head, _, tail = k.partition(".")
+                v = cfg[head][tail] if tail else cfg[head]
+                v = overrides.format_value(tuple(v) if isinstance(v, list) else v) if k != "total_steps" else v
+                if v not in at.setdefault(k, []):
+                    at[k].append(v)
+    return {arm: {role: {task: {k: v[0] if len(v) == 1 else sorted(v, key=str) for k, v in vals.items()}
+                         for task, vals in sorted(tasks.items())} for role, tasks in sorted(roles.items())}
+            for arm, roles in sorted(record.items())}
+
+
 def check_out_folder(out: Path, d: dict, force: bool) -> None:
     """Refuse an out folder that holds another sweep (or foreign runs) unless --force."""
     if out.exists() and not out.is_dir():
@@ -195,6 +227,7 @@ def check_out_folder(out: Path, d: dict, force: bool) -> None:
             old = json.loads(f.read_text())
         except (OSError, ValueError):
             old = {}
+        old, d = ({k: v for k, v in x.items() if k != ARMS_AS_RUN} for x in (old, d))
         diff = sorted(k for k in set(old) | set(d) if old.get(k) != d.get(k))
         if diff == ["arm_seeds"] and old.get("runs") == d.get("runs"):
             return  # the reference's seeds in their older form (counts per arm, before issue 40): the same runs
@@ -371,6 +404,7 @@ def _main(argv: Optional[Sequence[str]], held, train: Optional[Callable], report
                               f"--dry-run lists them): ask for fewer, select other arms, or pass --allow-capped")
         nodes = build_grid(d)
         d["runs"] = sorted(n.rel for n in nodes)
+        d[ARMS_AS_RUN] = arms_as_run(nodes)
         out = Path(a.out if a.out else Path(RUNS_DIR) / a.preset)
         if a.workers is not None and a.workers < 1:
             raise ConfigError(f"--workers must be >= 1, got {a.workers}")

@@ -81,6 +81,8 @@ class ReplayMethod(Protocol):
     # (a classmethod) per buffer: (most rows one env step adds, prioritized, the method's own bytes per row), for
     # the sweep's memory plan (experiment/cost.py); replay/method.py's BufferMethod gives one uniform buffer
     def replay_layout(cls, cfg) -> Dict[str, Any]: ...
+    # (optional classmethod) per buffer, rows per env step a typical run adds where far below the layout's most
+    def replay_typical(cls, cfg) -> Dict[str, float]: ...
 
 
 def goal_input(obs: np.ndarray, goal: np.ndarray) -> np.ndarray:

@@ -39,6 +39,13 @@ class BufferMethod:
         arrays). A method with other buffers overrides this."""
         return {"R": (1.0, False, 0)}
 
+    @classmethod
+    def replay_typical(cls, cfg) -> Dict[str, float]:
+        """Per buffer, the rows one env step adds to it in a typical run, where that is well below
+        ``replay_layout``'s most (the dry run prints the estimate from these and the bound from the layout; the
+        memory plan fits the bound). Default: the most."""
+        return {name: most for name, (most, _, _) in cls.replay_layout(cfg).items()}
+
     # ------------------------------------------------------------------ helpers
     def _buffer(self, name: str, prioritized: bool) -> ReplayBuffer:
         buf = make_buffer(self.rcfg.capacity, self.obs_dim, self.act_dim, prioritized, self.rcfg)
