@@ -6,11 +6,20 @@
   title, arms by their registry display name (``registry.arm_display``): no internal arm key in a legend.
 * Which rows a figure draws: the cells whose experiment or arm declares it in ``feeds`` (registry file names,
   ``fig5_multitask.png:ratio`` for Fig. 5's ratio panel); nothing is inferred from an experiment's shape.
-* Colours: one per arm in every figure. A method's paper treatment (an arm whose settings change nothing,
-  in a chain or single-task experiment) is drawn in the method's registry colour; every other arm gets a
-  fixed colour from ``ARM_PALETTE`` in registry order, keyed on its display name (``registry.colour_key``: an
-  adaptation arm and its from-scratch twin share one). Line style and marker tell the methods apart (each
-  method's own, ``MethodSpec.linestyle`` / ``marker``), so one arm of two methods shares its colour.
+* Colours: one per line (a method on an arm), the same in every figure, and no two lines of a figure alike
+  (``color_of``): the paper treatment (an arm whose settings change nothing, in a chain or single-task
+  experiment) in its method's registry colour (``MethodSpec.color``); its from-scratch twin (the control) in that
+  colour darkened; any other arm in its arm's colour (``Arm.colour``, else ``ARM_PALETTE`` in registry order,
+  keyed on its display, ``registry.colour_key``: an adaptation arm and its from-scratch twin share one), shaded
+  per method (``MethodSpec.shade``: the paper's method the arm's colour itself). Line style and marker are the
+  method's too (``MethodSpec.linestyle`` / ``marker``). Every figure carries its lines in its PNG metadata
+  (``legend_data``: per axes, each line's name, label and colour), which ``tests/test_figures.py`` holds to this
+  rule over every committed figure.
+* Identical algorithms: an arm whose runs repeat another cell's algorithm bit for bit (``Arm.identical_to``) is
+  drawn once, as that cell, with a note, where a figure draws both (two seed subsets of one algorithm would read
+  as a difference).
+* Many arms: an ablation with more than ``MAX_ARMS_ONE_PANEL`` arms of its own is split into columns of
+  ``ARMS_PER_PANEL`` arms, each beside the same comparison lines (the paper's settings, each claim's other side).
 * Size: no figure is taller than a printed page (``tests/test_report.py``); the ablations are one figure per
   experiment (``registry.fig6_file``), not one tall figure.
 * Only what differs: success is shown, the evaluation return is not (sparse reward and episodes that end on
@@ -20,9 +29,11 @@ The report calls ``plot_fig4``, ``plot_fig5``, ``plot_ablation`` (once per ablat
 """
 from __future__ import annotations
 
+import json
+import textwrap
 from collections import defaultdict
 from pathlib import Path
-from typing import Dict, List, Optional, Sequence, Tuple
+from typing import Dict, List, NamedTuple, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -40,13 +51,21 @@ RESAMPLES = 2_000
 DPI = 200
 FONT = {"font.size": 9, "axes.titlesize": 9.5, "axes.labelsize": 9, "xtick.labelsize": 8, "ytick.labelsize": 8,
         "legend.fontsize": 8, "figure.titlesize": 10}
-# Colours of non-paper arms, in registry order of their colour keys; the methods' own colours (tab:blue,
-# tab:orange, tab:gray) left out. Ordered so that the arms of one figure (the registry's neighbours) differ:
-# the ratios, from scratch, then e_share's six (mechanism's twins share them), then the smaller experiments.
-ARM_PALETTE = ("#1b9e77", "#e7298a", "#9467bd", "#8c564b", "#e377c2", "#2ca02c", "#d62728", "#17becf",
+# Colours of arms other than the paper treatment and its from-scratch control, in registry order of their colour
+# keys; the methods' own colours (tab:blue, tab:orange, tab:gray) left out. Ordered so that the arms of one figure
+# (the registry's neighbours) differ: the ratios, then e_share's six (mechanism's twins share them), then the
+# smaller experiments.
+ARM_PALETTE = ("#1b9e77", "#e7298a", "#8c564b", "#e377c2", "#2ca02c", "#d62728", "#17becf",
                "#bcbd22", "#006400", "#b8860b", "#8b0000", "#191970", "#6b6ecf", "#ad494a", "#31a354",
                "#d6616b", "#8ca252", "#7b4173", "#a55194", "#3182bd", "#637939", "#e6550d", "#5254a3",
                "#b5cf6b", "#cedb9c", "#e7969c", "#de9ed6")
+# A method's shade on a shared arm (MethodSpec.shade) where it declares none: the first level here no method
+# declares, in registry order.
+SHADE_LEVELS = (0.0, 0.45, -0.35, 0.7, -0.6, 0.25, -0.2, 0.85, -0.8, 0.15)
+# The from-scratch control: its method's colour darkened by this fraction, so fig. 5 tells it from the transfer
+# line in the method's own colour by colour, not by line style alone.
+SCRATCH_DARKEN = 0.4
+LEGEND_KEY = "Legend"   # the PNG text chunk holding a figure's lines (legend_data)
 
 
 # --------------------------------------------------------------------------- names and colours (registry)
@@ -70,25 +89,69 @@ def cell_label(experiment: str, arm: str, method: str) -> str:
     return f"{method_label(method)}, {arm_label(experiment, arm)}"
 
 
+def line_name(experiment: str, arm: str, method: str) -> str:
+    """What a line is, whichever figure draws it and whatever its label there: its method and arm, the paper
+    treatment of every chain or single-task experiment one line (fig. 5's "transfer", the 0.6/0.4 ratio). The
+    key of its colour and of the figures' metadata (``legend_data``)."""
+    arm_name = registry.PAPER_DISPLAY if is_paper_treatment(experiment, arm) else arm_label(experiment, arm)
+    return f"{method_label(method)}, {arm_name}"
+
+
 def _arm_colours() -> Dict[str, str]:
     """colour key (``registry.colour_key``) -> colour, in registry order."""
     out: Dict[str, str] = {}
     for e in EXPERIMENTS.values():
         for a in e.arms:
             key = registry.colour_key(e.name, a.name)
-            if key not in out and not a.colour and not is_paper_treatment(e.name, a.name):
+            if key not in out and not a.colour and not is_paper_treatment(e.name, a.name) \
+                    and not registry.is_scratch_control(e.name, a.name):
                 out[key] = ARM_PALETTE[len(out) % len(ARM_PALETTE)]
     for e in EXPERIMENTS.values():   # declared colours after the palette's: they take no palette slot
         out.update({registry.colour_key(e.name, a.name): a.colour for a in e.arms if a.colour})
     return out
 
 
+def method_shade(method: str) -> float:
+    """A method's shade (``MethodSpec.shade``, else the first free level of ``SHADE_LEVELS`` in registry order)."""
+    declared = {s.shade for s in METHOD_SPECS.values() if s.shade is not None}
+    free = iter([x for x in SHADE_LEVELS if x not in declared])
+    for name, spec in METHOD_SPECS.items():
+        level = spec.shade if spec.shade is not None else next(free, None)
+        if level is None:
+            raise ValueError(f"method {name!r}: every level of plots.SHADE_LEVELS is taken; declare its "
+                             "MethodSpec(shade=...)")
+        if name == method:
+            return level
+    return SHADE_LEVELS[0]
+
+
+def _mix(colour: str, towards: str, fraction: float) -> str:
+    from matplotlib.colors import to_hex, to_rgb
+    c, t = np.array(to_rgb(colour)), np.array(to_rgb(towards))
+    return to_hex(c + fraction * (t - c))
+
+
+def shade(colour: str, amount: float) -> str:
+    """``colour`` moved ``|amount|`` of the way towards contrast (white for a dark colour, black for a light one)
+    where ``amount`` > 0, the other way where < 0; the colour itself at 0."""
+    from matplotlib.colors import to_hex, to_rgb
+    if amount == 0:
+        return to_hex(colour)
+    r, g, b = to_rgb(colour)
+    dark = 0.299 * r + 0.587 * g + 0.114 * b < 0.5
+    return _mix(colour, "white" if dark == (amount > 0) else "black", abs(amount))
+
+
 def color_of(method: str, arm: str = PAPER_ARM, experiment: Optional[str] = None) -> str:
-    """One colour per arm in every figure: the method's colour for its paper treatment, else the arm's."""
+    """One colour per line (``line_name``) in every figure: the method's colour for its paper treatment (and
+    without an experiment), darkened for its from-scratch control, else the arm's colour in the method's shade."""
     spec = METHOD_SPECS.get(method)
+    own = spec.color if spec is not None else "black"
     if experiment is None or is_paper_treatment(experiment, arm):
-        return spec.color if spec is not None else "black"
-    return _arm_colours().get(registry.colour_key(experiment, arm), "black")
+        return own
+    if registry.is_scratch_control(experiment, arm):
+        return _mix(own, "black", SCRATCH_DARKEN)
+    return shade(_arm_colours().get(registry.colour_key(experiment, arm), "black"), method_shade(method))
 
 
 def style_of(method: str) -> Tuple[str, str]:
@@ -96,6 +159,19 @@ def style_of(method: str) -> Tuple[str, str]:
     methods of one arm apart."""
     spec = METHOD_SPECS.get(method)
     return (spec.linestyle, spec.marker) if spec is not None else (":", "D")
+
+
+class Line(NamedTuple):
+    """One curve of a figure: its runs (seed -> env step -> curve row), colour, style and what it is."""
+    by_seed: Dict[int, Dict[int, dict]]
+    color: str
+    linestyle: object
+    marker: str
+    name: str   # line_name: its colour's key and its entry in the figure's metadata
+
+
+def line_of(by_seed, experiment: str, arm: str, method: str) -> Line:
+    return Line(by_seed, color_of(method, arm, experiment), *style_of(method), line_name(experiment, arm, method))
 
 
 def paper_first(methods: Sequence[str]) -> List[str]:
@@ -106,9 +182,32 @@ def paper_first(methods: Sequence[str]) -> List[str]:
 
 
 # --------------------------------------------------------------------------- data
+def legend_data(fig) -> dict:
+    """What a figure draws, for a reader that cannot see it: its title, and per axes its title and every line
+    named by ``line_name`` (its artist's gid): name, legend label, colour (hex)."""
+    from matplotlib.colors import to_hex
+    suptitle = getattr(fig, "_suptitle", None)
+    return {"title": suptitle.get_text() if suptitle is not None else "",
+            "axes": [{"title": ax.get_title(),
+                      "lines": [dict(zip(("line", "label", "colour"), x)) for x in dict.fromkeys(
+                          (ln.get_gid(), ln.get_label(), to_hex(ln.get_color())) for ln in ax.get_lines()
+                          if ln.get_gid())]}   # once each: an error bar's caps share its gid
+                     for ax in fig.axes]}
+
+
+def read_legend_data(path: Path) -> Optional[dict]:
+    """A PNG's ``legend_data`` (None where it holds none)."""
+    from PIL import Image
+    with Image.open(path) as im:
+        text = getattr(im, "text", {}).get(LEGEND_KEY)
+    return json.loads(text) if text else None
+
+
 def save_figure(fig, path: Path) -> None:
+    """The PNG, its lines in a text chunk (``legend_data``; ASCII JSON: a tEXt chunk, the same bytes every time)."""
+    meta = {"Software": None, LEGEND_KEY: json.dumps(legend_data(fig), ensure_ascii=True, sort_keys=True)}
     atomic_write_with(path, lambda tmp: fig.savefig(tmp, format="png", dpi=DPI, bbox_inches="tight",
-                                                     metadata={"Software": None}))
+                                                     metadata=meta))
 
 
 def curves_by(curves: Sequence[Dict[str, str]], where, key) -> Dict[tuple, Dict[int, Dict[int, dict]]]:
@@ -137,19 +236,22 @@ def _kilo(ax) -> None:
     ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: steps_text(v)))
 
 
-def draw(ax, groups: Dict[str, Tuple[Dict[int, Dict[int, dict]], str, str, str]], key: str, title: str,
-         ylabel: str, rate: bool = False, reference: Optional[Dict[str, Dict[int, Dict[int, dict]]]] = None,
-         with_n: bool = True) -> None:
-    """``groups``: legend label -> (seed -> step -> row, colour, line style, marker); ``with_n``: seeds in the label."""
-    for label, (by_seed, color, ls, marker) in groups.items():
-        x, m, lo, hi = mean_band(by_seed, key)
+def draw(ax, groups: Dict[str, Line], key: str, title: str, ylabel: str, rate: bool = False,
+         reference: Optional[Dict[str, Dict[int, Dict[int, dict]]]] = None, with_n: bool = True) -> None:
+    """``groups``: legend label -> ``Line``; ``with_n``: seeds in the label; ``reference``: legend label -> another
+    folder's runs, drawn dotted in its line's colour."""
+    for label, line in groups.items():
+        x, m, lo, hi = mean_band(line.by_seed, key)
         # at most ~16 markers a curve: on a long curve, markers at every point hide its line style
-        ax.plot(x, m, marker=marker, ms=2.5, lw=1.4, label=f"{label} (n={len(by_seed)})" if with_n else label,
-                color=color, linestyle=ls, markevery=max(1, len(x) // 16))
-        ax.fill_between(x, lo, hi, color=color, alpha=0.15, lw=0)
+        ax.plot(x, m, marker=line.marker, ms=2.5, lw=1.4, color=line.color, linestyle=line.linestyle,
+                label=f"{label} (n={len(line.by_seed)})" if with_n else label, markevery=max(1, len(x) // 16),
+                gid=line.name)
+        ax.fill_between(x, lo, hi, color=line.color, alpha=0.15, lw=0)
     for label, by_seed in (reference or {}).items():
         x, m, _, _ = mean_band(by_seed, key)
-        ax.plot(x, m, color="black", alpha=0.5, linestyle=":", lw=1, label=f"reference: {label} (n={len(by_seed)})")
+        own = groups.get(label)
+        ax.plot(x, m, color=own.color if own else "black", alpha=0.6, linestyle=":", lw=1,
+                label=f"reference: {label} (n={len(by_seed)})", gid=own.name if own else None)
     ax.set_title(title)
     ax.set_xlabel("environment steps")
     ax.set_ylabel(ylabel)
@@ -207,11 +309,11 @@ def plot_fig4(curves, path: Path, reference=None) -> bool:
     fig, axes = plt.subplots(1, len(tasks), figsize=(2.45 * len(tasks) + 0.3, 2.5), squeeze=False, sharey=True)
     for j, task in enumerate(tasks):
         where = lambda r, t=task: single(r) and r["task"] == t  # noqa: E731
-        g = curves_by(curves, where, lambda r: r["method"])
-        groups = {method_label(m): (g[m], color_of(m), *style_of(m)) for m in METHOD_SPECS if m in g}
+        g = curves_by(curves, where, lambda r: (r["experiment"], r["arm"], r["method"]))
+        groups = {method_label(k[2]): line_of(g[k], *k) for m in METHOD_SPECS for k in sorted(g) if k[2] == m}
         ref = {method_label(m): v for m, v in curves_by(reference, where, lambda r: r["method"]).items()} \
             if reference else None
-        ns = sorted({len(v[0]) for v in groups.values()})
+        ns = sorted({len(v.by_seed) for v in groups.values()})
         draw(axes[0, j], groups, "eval_success_rate", f"{task} (n = {'/'.join(map(str, ns))} seeds)",
              "evaluation success rate" if j == 0 else "", rate=True, reference=ref, with_n=False)
     _legend_below(fig, axes, ncol=4)
@@ -237,13 +339,13 @@ def plot_fig5(curves, path: Path, reference=None) -> bool:
     g = curves_by(curves, main, lambda r: (r["experiment"], r["arm"], r["method"]))
     order = sorted(g, key=lambda k: (k[0] in scratch, list(METHOD_SPECS).index(k[2]) if k[2] in METHOD_SPECS else 9))
     label = lambda k: method_label(k[2]) + (", from scratch" if k[0] in scratch else ", transfer")  # noqa: E731
-    groups = {label(k): (g[k], color_of(k[2], k[1], k[0]), *style_of(k[2])) for k in order}
+    groups = {label(k): line_of(g[k], *k) for k in order}
     ref = {label(k): v for k, v in curves_by(reference, main, lambda r: (r["experiment"], r["arm"], r["method"])).items()} \
         if reference else None
     ratios = curves_by(curves, lambda r: r["task"] == target and r["role"] == "adapt" and fed_ratios(r),
                        lambda r: (r["experiment"], r["arm"], r["method"]))
     rgroups = {f"{method_label(k[2])}, P(R)/P(E) = {arm_label(k[0], k[1]) if not is_paper_treatment(k[0], k[1]) else k[1]}":
-               (ratios[k], color_of(k[2], k[1], k[0]), *style_of(k[2])) for k in ratios}
+               line_of(ratios[k], *k) for k in ratios}
     fig, axes = plt.subplots(1, 3, figsize=(10.5, 3.0))
     draw(axes[0], groups, "eval_success_rate", f"{target}: evaluation success", "success rate", rate=True,
          reference=ref)
@@ -253,8 +355,9 @@ def plot_fig5(curves, path: Path, reference=None) -> bool:
             continue
         s0 = [rows[0]["eval_success_rate"] for rows in g[k].values() if 0 in rows]
         if s0:
-            axes[0].axhline(float(np.mean([float(v) for v in s0])), color=groups[label(k)][1], linestyle=":", lw=1,
-                            alpha=0.9, label=f"{method_label(k[2])} prior, zero-shot (step 0)")
+            line = groups[label(k)]   # the step-0 value of this line: its colour and name
+            axes[0].axhline(float(np.mean([float(v) for v in s0])), color=line.color, linestyle=":", lw=1,
+                            alpha=0.9, label=f"{method_label(k[2])} prior, zero-shot (step 0)", gid=line.name)
     draw(axes[1], groups, "train_successes", f"{target}: successful training episodes",
          "cumulative (paper Table 5)", reference=ref)
     draw(axes[2], rgroups, "train_successes", f"{target}: sampling ratio (Table 4)", "cumulative")
@@ -324,11 +427,32 @@ def _ablation_cells(e: str, runs: Dict[Tuple[str, str, str], set]) -> List[Tuple
 
 ABLATION_SIZE = (7.0, 2.7)   # inches, the two panels; the legend below adds a line per one or two curves
 LEGEND_TWO_COLUMNS = 48      # longest label (characters) that two legend columns fit within the figure's width
+MAX_ARMS_ONE_PANEL = 3       # more arms of its own than this and an ablation's figure is split into columns
+ARMS_PER_PANEL = 2           # a split figure's arms per column, beside its comparison lines
+PANEL_SIZE = (3.1, 2.4)      # inches, one panel of a split figure
 
 
-def _ablation_plan(curves, experiment: str):
-    """(adaptation curve rows, the cells an ablation's figure draws, the experiment's arms it does not draw: no
-    runs in this folder), or None where the folder has none of the experiment's adaptation runs."""
+class AblationPlan(NamedTuple):
+    adapt: List[dict]                      # the folder's adaptation curve rows
+    cells: List[Tuple[str, str, str]]      # (experiment, arm, method) of every line, in legend order
+    own: List[Tuple[str, str]]             # the experiment's arms drawn (a twin's cell standing in), not the paper's
+    notes: List[str]                       # the arms drawn as another cell (Arm.identical_to)
+    absent: List[str]                      # the experiment's arms with no runs in this folder (display names)
+
+
+def _identical(cells: Sequence[Tuple[str, str, str]]) -> Dict[Tuple[str, str, str], Tuple[str, str, str]]:
+    """cell -> the drawn cell whose algorithm it repeats bit for bit (``Arm.identical_to``)."""
+    out = {}
+    for k in cells:
+        e = EXPERIMENTS.get(k[0])
+        a = next((x for x in e.arms if x.name == k[1]), None) if e is not None else None
+        if a is not None and tuple(a.identical_to) in cells:
+            out[k] = tuple(a.identical_to)
+    return out
+
+
+def _ablation_plan(curves, experiment: str) -> Optional[AblationPlan]:
+    """What an ablation's figure draws, or None where the folder has none of the experiment's adaptation runs."""
     adapt = [r for r in curves if r["role"] == "adapt"]
     if not any(r["experiment"] == experiment for r in adapt):
         return None
@@ -336,53 +460,96 @@ def _ablation_plan(curves, experiment: str):
     for r in adapt:
         runs[(r["experiment"], r["arm"], r["method"])].add(r["run"])
     cells = _ablation_cells(experiment, runs)
+    same = _identical(cells)
+    notes = [f'"{cell_label(*k)}" is "{cell_label(*t)}" bit for bit: drawn once, as the latter'
+             for k, t in same.items()]
     e = EXPERIMENTS.get(experiment)
     key = lambda x, a: "paper" if is_paper_treatment(x, a) else registry.colour_key(x, a)  # noqa: E731
     drawn = {key(k[0], k[1]) for k in cells}
     absent = [arm_label(experiment, a.name) for a in (e.arms if e is not None else ())
               if key(experiment, a.name) not in drawn]
-    return adapt, cells, absent
+    cells = [k for k in cells if k not in same]
+    twins = set(_twin_cells(experiment, runs))
+    own = list(dict.fromkeys((k[0], k[1]) for k in cells
+                             if (k[0] == experiment or k in twins) and not is_paper_treatment(k[0], k[1])))
+    return AblationPlan(adapt, cells, own, notes, absent)
 
 
 def undrawn_arms(curves, experiment: str) -> List[str]:
     """The display names of an ablation's arms its figure does not draw (no runs in this folder): summary.md
     names them beside the figure; its title does not."""
     plan = _ablation_plan(curves, experiment)
-    return plan[2] if plan else []
+    return plan.absent if plan else []
+
+
+def _columns(plan: AblationPlan) -> List[List[Tuple[str, str, str]]]:
+    """The cells of each column: all of them, or, past ``MAX_ARMS_ONE_PANEL`` arms of the experiment's own,
+    ``ARMS_PER_PANEL`` of those arms per column, each beside every comparison line."""
+    if len(plan.own) <= MAX_ARMS_ONE_PANEL:
+        return [list(plan.cells)]
+    context = [k for k in plan.cells if (k[0], k[1]) not in plan.own]
+    groups = [plan.own[i:i + ARMS_PER_PANEL] for i in range(0, len(plan.own), ARMS_PER_PANEL)]
+    return [[k for k in plan.cells if k in context or (k[0], k[1]) in arms] for arms in groups]
 
 
 def plot_ablation(curves, path: Path, experiment: str) -> bool:
     """One ablation experiment (``registry.fig6_file``): its arms, the paper treatment where the experiment has
     one, and each claim's comparison arm; evaluation success and cumulative successful training episodes. Arms
-    by display name, one colour per arm in every figure (the arms not drawn: ``undrawn_arms``, in summary.md)."""
+    by display name, one colour per line in every figure (the arms not drawn: ``undrawn_arms``, in summary.md);
+    many arms: one column per ``ARMS_PER_PANEL`` of them (``_columns``)."""
     plan = _ablation_plan(curves, experiment)
     if plan is None:
         return False
-    adapt, cells, _ = plan
-    want = set(cells)
-    g = curves_by(adapt, lambda r: (r["experiment"], r["arm"], r["method"]) in want,
+    want = set(plan.cells)
+    g = curves_by(plan.adapt, lambda r: (r["experiment"], r["arm"], r["method"]) in want,
                   lambda r: (r["experiment"], r["arm"], r["method"]))
-    groups = {cell_label(*k): (g[k], color_of(k[2], k[1], k[0]), *style_of(k[2])) for k in cells}
+    groups = {cell_label(*k): line_of(g[k], *k) for k in plan.cells}
+    columns = _columns(plan)
+    split = len(columns) > 1
     plt = _plt()
-    fig, axes = plt.subplots(1, 2, figsize=ABLATION_SIZE)
-    # drawn last to first, so the first listed (the paper's settings; a shorter budget, whose runs are the first
-    # steps of a longer one's) lie on top; the legend keeps the listed order
-    on_top = dict(reversed(list(groups.items())))
+    if split:
+        fig, axes = plt.subplots(2, len(columns), figsize=(PANEL_SIZE[0] * len(columns) + 0.4, 2 * PANEL_SIZE[1]),
+                                 sharex=True, sharey="row", squeeze=False)
+    else:
+        fig, axes = plt.subplots(1, 2, figsize=ABLATION_SIZE, squeeze=False)
+        axes = axes.T   # one column: evaluation success above, training episodes below
     # the random arm never updates, so its evaluation is its untouched prior's: not a curve of random actions
-    chance = {cell_label(*k) for k in cells if k[1] == RANDOM_ARM}
-    draw(axes[0], {k: v for k, v in on_top.items() if k not in chance}, "eval_success_rate", "evaluation success",
-         "success rate", rate=True)
-    draw(axes[1], on_top, "train_successes", "successful training episodes", "cumulative")
-    handles, labels = axes[1].get_legend_handles_labels()
+    chance = {cell_label(*k) for k in plan.cells if k[1] == RANDOM_ARM}
+    for j, column in enumerate(columns):
+        # drawn last to first, so the first listed (the paper's settings; a shorter budget, whose runs are the
+        # first steps of a longer one's) lie on top; the legend keeps the listed order
+        on_top = {lab: groups[lab] for lab in reversed([cell_label(*k) for k in column])}
+        if split:
+            # the figure's title says "without transfer" where it is so; the legend names each line in full
+            arms = [arm_label(x, a).removesuffix(", from scratch") for x, a in plan.own
+                    if any(k[:2] == (x, a) for k in column)]
+            titles = ("\n".join(line for arm in arms for line in textwrap.wrap(arm, 46)), "")   # an arm a line
+            ylabels = ("evaluation success", "successful training\nepisodes (cumulative)") if j == 0 else ("", "")
+        else:
+            titles, ylabels = ("evaluation success", "successful training episodes"), ("success rate", "cumulative")
+        draw(axes[0, j], {k: v for k, v in on_top.items() if k not in chance}, "eval_success_rate", titles[0],
+             ylabels[0], rate=True)
+        draw(axes[1, j], on_top, "train_successes", titles[1], ylabels[1])
+        if split and j:
+            for ax in axes[:, j]:
+                ax.tick_params(labelleft=False)
+        if split:
+            axes[0, j].set_xlabel("")
+    seen: Dict[str, object] = {}
+    for ax in np.ravel(axes):
+        for h, lab in zip(*ax.get_legend_handles_labels()):
+            seen.setdefault(lab, h)
     place = {lab: i for i, lab in enumerate(groups)}
-    pairs = sorted(zip(handles, labels), key=lambda hl: place.get(hl[1].rsplit(" (n=", 1)[0], len(place)))
-    ncol = 2 if max(len(x) for x in groups) <= LEGEND_TWO_COLUMNS else 1
-    fig.legend([h for h, _ in pairs], [lab for _, lab in pairs], loc="upper center", bbox_to_anchor=(0.5, 0.0),
+    pairs = sorted(seen.items(), key=lambda lh: place.get(lh[0].rsplit(" (n=", 1)[0], len(place)))
+    width = fig.get_size_inches()[0]
+    ncol = 2 if max(len(x) for x in groups) <= LEGEND_TWO_COLUMNS * width / ABLATION_SIZE[0] else 1
+    fig.legend([h for _, h in pairs], [lab for lab, _ in pairs], loc="upper center", bbox_to_anchor=(0.5, 0.0),
                ncol=ncol, frameon=False)
     title = experiment_label(experiment)
     note = "mean over seeds, 95% bootstrap band; line style: method" + (
-        "; uniform-random actions: training episodes only" if chance else "")
-    fig.suptitle(f"{title}\n{note}", fontsize=9.5)
+        "; uniform-random actions: training episodes only" if chance else "") + (
+        f"; {ARMS_PER_PANEL} arms per column" if split else "")
+    fig.suptitle("\n".join([title, note] + [ln for n in plan.notes for ln in textwrap.wrap(n, 90)]), fontsize=9.5)
     fig.tight_layout()
     save_figure(fig, path)
     plt.close(fig)
@@ -392,6 +559,7 @@ def plot_ablation(curves, path: Path, experiment: str) -> bool:
 # --------------------------------------------------------------------------- Fig. 7 (rliable style)
 def _aggregate_row(axes, mats: Dict[str, np.ndarray], tasks: List[str], metric_name: str, rate: bool) -> None:
     names = paper_first(list(mats))  # the paper's method first: P(it > each other)
+    names_of = {m: f"{method_label(m)}, {registry.PAPER_DISPLAY}" for m in names}   # each its paper treatment
     q = (1 - LEVEL) / 2
     # (1) IQM and mean with stratified-bootstrap CIs
     for k, (label, fn) in enumerate((("IQM", lambda x: float(stats.iqm(x))), ("mean", lambda x: float(x.mean())))):
@@ -401,7 +569,7 @@ def _aggregate_row(axes, mats: Dict[str, np.ndarray], tasks: List[str], metric_n
             lo, hi = np.quantile(boots[m], [q, 1 - q])
             y = j + 0.15 * (1 - 2 * k)
             axes[0].errorbar(pt, y, xerr=[[pt - lo], [hi - pt]], fmt="o" if k == 0 else "s", color=color_of(m),
-                             capsize=3, ms=5, mfc=color_of(m) if k == 0 else "white")
+                             capsize=3, ms=5, mfc=color_of(m) if k == 0 else "white", gid=names_of[m])
     axes[0].set_yticks(range(len(names)), [method_label(m) for m in names])
     axes[0].set_ylim(-0.6, len(names) - 0.4)
     axes[0].set_xlabel(f"{metric_name}\n(filled: IQM, open: mean; 95% CI)")
@@ -414,7 +582,7 @@ def _aggregate_row(axes, mats: Dict[str, np.ndarray], tasks: List[str], metric_n
     for m in names:
         ls, _ = style_of(m)
         axes[1].plot(taus, stats.performance_profile(mats[m], taus), color=color_of(m), linestyle=ls,
-                     label=method_label(m))
+                     label=method_label(m), gid=names_of[m])
         lo, hi = np.quantile(boots[m], [q, 1 - q], axis=0)
         axes[1].fill_between(taus, lo, hi, color=color_of(m), alpha=0.15, lw=0)
     axes[1].set_xlabel(f"threshold tau on {metric_name}")

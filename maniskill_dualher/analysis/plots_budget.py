@@ -27,10 +27,11 @@ def plot_budget(rows: Sequence[dict], path: Path) -> bool:
         for xi, y, lo, hi, nd, nh in pts:
             lo_err = y - lo if math.isfinite(lo) else 0.0
             hi_err = hi - y if math.isfinite(hi) else 0.0
-            ax.errorbar([xi], [y], yerr=[[lo_err], [hi_err]], fmt="o", color="tab:blue", capsize=4)
+            # black: a contrast of two methods, in neither's colour
+            ax.errorbar([xi], [y], yerr=[[lo_err], [hi_err]], fmt="o", color="black", capsize=4)
             ax.annotate(f"n={nd}, {nh}", (xi, y), textcoords="offset points", xytext=(6, 4), fontsize=7)
         if len(pts) > 1:
-            ax.plot([p[0] for p in pts], [p[1] for p in pts], color="tab:blue", alpha=0.5)
+            ax.plot([p[0] for p in pts], [p[1] for p in pts], color="black", alpha=0.5)
         ax.axhline(ref, color="black", lw=0.8, ls="--")
         ax.set_xscale("log", base=2)
         ax.set_xticks(x)

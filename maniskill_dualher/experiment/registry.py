@@ -86,9 +86,15 @@ class Arm:
     # a declared colour (any matplotlib colour): outside the palette, so an arm added with one restyles no other;
     # empty: the next palette colour in registry order
     colour: str = ""
+    # (experiment, arm, method) whose algorithm this arm's runs repeat bit for bit: a figure that draws that cell
+    # draws this arm once, as it, with a note (two lines of one algorithm on different seeds read as a difference)
+    identical_to: Tuple[str, str, str] = ()
 
     def __post_init__(self):
         _check_feeds(f"arm {self.name!r}", self.feeds)
+        if self.identical_to and len(self.identical_to) != 3:
+            raise ConfigError(f"arm {self.name!r}: identical_to is (experiment, arm, method), "
+                              f"not {self.identical_to!r}")
 
 
 @dataclass(frozen=True)
@@ -230,7 +236,7 @@ EXPERIMENTS: Dict[str, Experiment] = {e.name: e for e in (
         Arm("e_off", ("adapt.replay.ratio=1/0",),
             doc="E never sampled: SAC+HER+PER bit for bit (an identity check of the code; claims use "
                 "SAC+HER+PER's runs)",
-            display=E_OFF),
+            display=E_OFF, identical_to=("scratch", PAPER_ARM, "sac_her_per")),
         Arm("r_matched", ("adapt.sac.updates_per_step=1/0.6",),
             doc="1/0.6 updates per env step: R gets SAC+HER+PER's updates, E's batches on top", display=R_MATCHED),
         R_STARVED_ARM,
@@ -361,13 +367,23 @@ def ablation_experiments() -> Tuple[str, ...]:
 def is_paper_treatment(experiment: str, arm: str) -> bool:
     """An arm of a single-task or chain experiment whose settings leave every stage as the paper arm's (the
     plots draw it as the paper's settings, in one colour)."""
+    e = EXPERIMENTS.get(experiment)
+    return e is not None and e.kind != "scratch" and _changes_nothing(experiment, arm)
+
+
+def is_scratch_control(experiment: str, arm: str) -> bool:
+    """An arm of a scratch experiment whose settings change nothing: the paper treatment's from-scratch twin
+    (the plots draw it in its method's colour, darkened)."""
+    e = EXPERIMENTS.get(experiment)
+    return e is not None and e.kind == "scratch" and _changes_nothing(experiment, arm)
+
+
+def _changes_nothing(experiment: str, arm: str) -> bool:
     from . import overrides  # plain config code: no torch, no simulator
     from ..config import RunConfig
     e = EXPERIMENTS.get(experiment)
     a = next((x for x in e.arms if x.name == arm), None) if e is not None else None
-    if e is None or a is None or e.kind == "scratch":
-        return False
-    if a.adapt_steps_factor != 1.0 or a.prior_method is not None:
+    if a is None or a.adapt_steps_factor != 1.0 or a.prior_method is not None:
         return False
     base = RunConfig()
     for stage in range(3):
