@@ -30,6 +30,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from .replay.base import Batch
 
 _HALF_LOG_2PI = 0.5 * math.log(2 * math.pi)
+CPP_WRAPPER = True  # SACConfig.compile's generated code is called from C++ (False: inductor's Python wrapper)
 
 
 class Layers:
@@ -248,7 +249,10 @@ class FusedUpdate:
         self.row_blocks = len(self.sacs) == 1  # _compute: one agent's passes share their layers (row blocks)
         self.compute = self._compute
         if sac.cfg.compile:  # compute draws nothing (``draws`` are made outside it): nothing random to compile
-            self.compute = torch.compile(self._compute, dynamic=False)
+            # inductor's C++ wrapper calls the same generated kernels as its Python wrapper (bit for bit the same
+            # updates: tests/test_sac_fused.py) without a Python call per kernel: at 64x64 networks that was
+            # ~0.2 ms of a 1.3 ms update (bench/step_budget.py at the paper regime's step arm)
+            self.compute = torch.compile(self._compute, dynamic=False, options={"cpp_wrapper": CPP_WRAPPER})
 
     def draw_shapes(self, n_critic: int, n_pi: int, act_dim: int, separate: bool) -> List[Tuple[int, int]]:
         """The standard-normal draws of one update, in the order one agent's update makes them (a pack draws

@@ -177,6 +177,25 @@ def test_compiled_update_equals_the_eager_one():
     assert_same_parameters(eager, compiled)
 
 
+@pytest.mark.slow  # two compilations (~1 min each on 2 busy cores)
+@pytest.mark.skipif(shutil.which("c++") is None and shutil.which("g++") is None, reason="no C++ compiler")
+def test_compiled_update_called_from_cpp_equals_the_python_wrappers_bit_for_bit(monkeypatch):
+    """SACConfig.compile calls inductor's kernels from a C++ wrapper: the same kernels as its Python wrapper, so
+    the same bits (the step arm's declared update does not change by the wrapper)."""
+    import maniskill_dualher.sac_fused as sf
+    cfg = SACConfig(variant="modern", batch_size=B, hidden=(64, 64), lr=1e-3, compile=True)
+    agents = {}
+    for wrapper in (True, False):
+        monkeypatch.setattr(sf, "CPP_WRAPPER", wrapper)
+        torch._dynamo.reset()
+        torch.manual_seed(0)
+        agents[wrapper] = SAC(D, A, cfg, generator=torch.Generator().manual_seed(3))
+        for step in range(5):
+            agents[wrapper].update(make_batch(step))
+    for (k, p), q in zip(agents[True].state_dict().items(), agents[False].state_dict().values()):
+        assert torch.equal(p, q), k
+
+
 @pytest.mark.parametrize("bad,match", [(dict(matmul_precision="bf16", update_impl="autograd"), "bf16"),
                                        (dict(compile=True, update_impl="autograd"), "compile"),
                                        (dict(update_impl="jit"), "update_impl")])
