@@ -360,6 +360,13 @@ def report(res: dict, per_event: dict) -> str:
         floor = sum(parts[p] for p in FLOOR)
         lines.append(f"floor (physics + eval physics + update products), {name}: {1e3 * floor / n:.3f} ms/step "
                      f"against {1e3 * tot / n:.3f}: {tot / floor:.2f}x its floor")
+    if res.get("floor_products"):  # a compiled update calls its products from C++, where no timer sees them
+        fp = res["floor_products"]
+        for name, parts, tot, key in (("wall", pw, tw, "wall_ms"), ("CPU", pc, tc, "cpu_ms")):
+            floor = 1e3 * (parts["physics"] + parts["eval physics"]) / n + fp[key]
+            lines.append(f"floor with the update products of {fp['from']} ({fp[key]:.3f} ms/step, the same products "
+                         f"uncompiled), {name}: {floor:.3f} ms/step against {1e3 * tot / n:.3f}: "
+                         f"{1e3 * tot / n / floor:.2f}x its floor")
     calls = res["calls"]["env python"]
     for name, parts in (("wall", pw), ("CPU", pc)):
         step = parts["physics"] + parts["env python"]
@@ -384,6 +391,10 @@ def main(argv=None) -> None:
                    help="a setting of every run, as `sweep --set` (e.g. sac.compile=true); repeatable")
     p.add_argument("--warmup-steps", type=int, default=0,
                    help="env steps per member run before anything is counted (a compiled update compiles there)")
+    p.add_argument("--floor-products-from", metavar="FILE.json",
+                   help="another run of this bench (one task, uncompiled, the same settings otherwise) whose update "
+                        "products per env step stand in the floor: a compiled update calls its products from C++ "
+                        "(SACConfig.compile), where this bench's timers do not see them")
     p.add_argument("--out", help="JSON file for the raw numbers (atomic write)")
     p.add_argument("--load", default="", help="a note on the machine's load while this ran, kept in the output")
     args = p.parse_args(argv)
@@ -431,12 +442,25 @@ def main(argv=None) -> None:
     instrument(args.warmup_steps, compiled == {True})
     per_event = calibrate()
     lean = envs.lean_step_wanted()
+    floor_products = None
+    if args.floor_products_from:
+        try:
+            other = json.loads(Path(args.floor_products_from).read_text())["results"][0]
+            n_other = other["training_env_steps"]
+            floor_products = {"from": args.floor_products_from,
+                              "wall_ms": 1e3 * other["parts_wall_s"]["update products"] / n_other,
+                              "cpu_ms": 1e3 * other["parts_cpu_s"]["update products"] / n_other}
+        except (OSError, ValueError, KeyError, IndexError, ZeroDivisionError) as e:
+            print(f"--floor-products-from={args.floor_products_from!r}: not a step_budget result ({e})",
+                  file=sys.stderr)
+            raise SystemExit(2)
     results = []
     for task in tasks:
         res = run(task, args.members, args.steps, args.method, args.learning_starts, args.regime, sets,
                   args.warmup_steps)
         res["lean_step"] = lean
         res["timer_event_s"] = per_event
+        res["floor_products"] = floor_products
         results.append(res)
         print(report(res, per_event), flush=True)
     if args.out:
