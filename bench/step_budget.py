@@ -171,7 +171,26 @@ class _Px:
             CLOCK.leave()
 
 
-def instrument(warmup_steps: int = 0, compiled: bool = False) -> None:
+def fill_replay(trainer, rows: int, chunk: int = 250_000) -> None:
+    """Fill each prioritized buffer of the run's method with synthetic rows (at the maximum priority, as new rows
+    arrive) to ``rows`` (at most its capacity), so that sampling and priority writes walk a tree that size: a short
+    bench otherwise samples from the ~10^5 rows it stored, which sit in cache."""
+    import numpy as np
+
+    from maniskill_dualher.replay.buffer import transition_fields
+    rng = np.random.default_rng(0)
+    for buf in trainer.method.buffers.values():
+        if not getattr(buf.sampler, "prioritized", False):
+            continue
+        goal = min(rows, buf.storage.capacity)
+        fields = transition_fields(trainer.method.obs_dim, trainer.method.act_dim)
+        while len(buf.storage) < goal:
+            n = min(chunk, goal - len(buf.storage))
+            buf.add({k: rng.standard_normal((n, *shape)).astype(dt) if shape else np.zeros(n, dt)
+                     for k, (shape, dt) in fields.items()})
+
+
+def instrument(warmup_steps: int = 0, compiled: bool = False, fill_rows: int = 0) -> None:
     import maniskill_dualher.sac_fused as sf
     import maniskill_dualher.tasks  # noqa: F401  (registers the tasks)
     from maniskill_dualher import envs, pack, sac, train
@@ -186,7 +205,10 @@ def instrument(warmup_steps: int = 0, compiled: bool = False) -> None:
 
     def start_and_register(self, *a, **kw):
         CLOCK.runs.append(self)
-        return start(self, *a, **kw)
+        out = start(self, *a, **kw)
+        if fill_rows:
+            fill_replay(self, fill_rows)  # before the warm-up's mark: not counted
+        return out
     T.start = start_and_register
     T.close = timed(T.close, "setup")
     T.step = timed(T.step, "episodes+store")
@@ -391,6 +413,9 @@ def main(argv=None) -> None:
                    help="a setting of every run, as `sweep --set` (e.g. sac.compile=true); repeatable")
     p.add_argument("--warmup-steps", type=int, default=0,
                    help="env steps per member run before anything is counted (a compiled update compiles there)")
+    p.add_argument("--fill-rows", type=int, default=0, metavar="N",
+                   help="fill each run's prioritized replay with N synthetic rows (up to its capacity) before the "
+                        "warm-up, so sampling and priority writes walk a tree of a full run's size")
     p.add_argument("--floor-products-from", metavar="FILE.json",
                    help="another run of this bench (one task, uncompiled, the same settings otherwise) whose update "
                         "products per env step stand in the floor: a compiled update calls its products from C++ "
@@ -439,7 +464,11 @@ def main(argv=None) -> None:
     import torch
     torch.set_num_threads(1)
     from maniskill_dualher import envs
-    instrument(args.warmup_steps, compiled == {True})
+    if args.fill_rows and not args.warmup_steps:
+        print(f"--fill-rows={args.fill_rows} needs --warmup-steps (filling is not a training step's cost)",
+              file=sys.stderr)
+        raise SystemExit(2)
+    instrument(args.warmup_steps, compiled == {True}, args.fill_rows)
     per_event = calibrate()
     lean = envs.lean_step_wanted()
     floor_products = None

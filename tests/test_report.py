@@ -381,8 +381,12 @@ def test_merge_adds_another_sweeps_cells_with_their_machine(folder, tmp_path, ca
     """A reference made on one CPU gets the cells of a later sweep made on another: the claims see both
     sides, each row says its machine, run names say their sweep; overlapping cells or other budgets refuse."""
     ref, other = _merge_pair(folder, tmp_path)
+    arms = {"single/paper": {"single": {"ReachTarget-v1": {"total_steps": 2}}}}  # sweep.py's record, as run
+    (other / "sweep.json").write_text(json.dumps({**json.loads((other / "sweep.json").read_text()),
+                                                  "arms_as_run": arms}))
     n_before = len(_table(ref / "scores.csv"))
     assert report.main([str(ref), "--merge", str(other)]) == 0
+    assert json.loads((ref / "sweep.json").read_text())["arms_as_run"] == arms  # the merged arms' settings join
     scores = _table(ref / "scores.csv")
     assert len(scores) > n_before and {r["machine"] for r in scores} == {"CPU A (avx512_bf16)", "CPU B (avx2)"}
     assert all(r["run"].startswith("more/") for r in scores if r["machine"] == "CPU B (avx2)")

@@ -266,7 +266,8 @@ def merge_into(folder: Path, other: Path, into: Optional[Path] = None) -> Option
     atomic_write_text(into / SCORES, csv_text(scores, SCORE_COLUMNS))
     kill_point("merged-scores")
     atomic_write_text(into / CURVES, csv_text(curves, CURVE_COLUMNS))
-    rundir.write_json(into / rundir.SWEEP, {**mine, "merged": merged})
+    arms = {**theirs.get("arms_as_run", {}), **mine.get("arms_as_run", {})}  # the merged arms' settings as run
+    rundir.write_json(into / rundir.SWEEP, {**mine, "merged": merged, **({"arms_as_run": arms} if arms else {})})
     return None
 
 
