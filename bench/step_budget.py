@@ -34,6 +34,7 @@ unless ``MANISKILL_DUALHER_LEAN_STEP=0`` (compare the two for the env's share be
 
     python bench/step_budget.py [--tasks ReachTarget-v1,...] [--members 2] [--steps 3000]
                                 [--learning-starts N] [--set KEY=VALUE ...] [--warmup-steps W] [--out FILE.json]
+                                [--fill-rows N] [--floor-products-from FILE.json]
 
 ``--learning-starts N`` (default: the preset's) sets both the random steps and the first update's env step
 (a short run that reaches its updates: tests/test_step_budget.py). ``--learning-starts 0`` is the steady state:
