@@ -14,7 +14,8 @@ def test_bad_input_is_one_line_exit_2(tmp_path):
     out = tmp_path / "x.json"
     for args in (["--tasks", "Nope-v1"], ["--members", "0"], ["--steps", "-3"], ["--method", "nope"],
                  ["--learning-starts", "-1"], ["--set", "sac.nope=1"], ["--set", "sac.compile=maybe"],
-                 ["--warmup-steps", "3000"], ["--warmup-steps", "-1"]):
+                 ["--warmup-steps", "3000"], ["--warmup-steps", "-1"], ["--fill-rows", "1000"],
+                 ["--floor-products-from", str(tmp_path / "missing.json")]):
         r = _run(*args, "--out", str(out))
         assert r.returncode == 2, r.stderr
         assert len(r.stderr.strip().splitlines()) == 1 and args[1] in r.stderr
@@ -93,3 +94,22 @@ def test_a_compiled_update_has_its_products_timed(tmp_path):
     assert res["cfg"]["sac"]["compile"] is True and res["updates"] > 0
     assert res["calls"]["update products"] >= 20 * res["updates"]  # 22 extern products per update at 64x64
     assert 0 < parts["update overhead"] < parts["update products"]
+
+
+def test_a_filled_replay_is_sampled_at_its_full_size_and_a_floor_can_take_anothers_products(tmp_path):
+    """--fill-rows fills R (not counted: it happens before the warm-up's mark) so the runs sample a tree that size;
+    --floor-products-from puts another result's update products in the floor line."""
+    first, second = tmp_path / "a.json", tmp_path / "b.json"
+    common = ("--regime", "paper", "--members", "1", "--steps", "300", "--warmup-steps", "100", "--learning-starts",
+              "50", "--set", "sac.update_schedule=step")
+    r = _run(*common, "--out", str(first))
+    assert r.returncode == 0, r.stderr[-2000:]
+    r = _run(*common, "--fill-rows", "300000", "--floor-products-from", str(first), "--out", str(second))
+    assert r.returncode == 0, r.stderr[-2000:]
+    a, b = (json.loads(f.read_text()) for f in (first, second))
+    products = a["results"][0]["parts_wall_s"]["update products"] / a["results"][0]["training_env_steps"]
+    assert b["results"][0]["floor_products"]["wall_ms"] == pytest.approx(1e3 * products)
+    assert "floor with the update products of" in b["report"][0]
+    # filled, R serves a batch from the first step counted: one update per env step; empty, it waits for the
+    # first 150-step episode to be stored
+    assert b["results"][0]["updates"] == 300 - 100 and 0 < a["results"][0]["updates"] < 300 - 100
