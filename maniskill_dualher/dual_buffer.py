@@ -71,8 +71,7 @@ class DualBufferReplay(BufferMethod):
         whose episodes succeed sooner makes more of them; one per env step stays the bound). In the paper's
         regime that is 24,000 of 3.6M env steps, ~9 MB beside R's 4 GB: the bound (1.4 GB) put the dry run's
         estimate 35% over the measured peak."""
-        typical = cls.replay_layout(cfg)
-        per_step = {name: most for name, (most, _, _) in typical.items()}
+        per_step = super().replay_typical(cfg)
         if cfg.replay.success_buffer == "transitions" and cfg.terminate_on_success and cfg.max_episode_steps:
             per_step["E"] = 1.0 / cfg.max_episode_steps
         return per_step
