@@ -21,9 +21,9 @@ training env step (summed over members):
                     and ``Trainer._updates_due`` (the update schedule)
   eval physics      PhysX's substeps inside ``train.evaluate_runs``/``Trainer.evaluate``
   eval python       the rest of evaluation (its env Python, resets, acting, episode bookkeeping)
-  logging+ckpt      ``Trainer.between_episodes``/``after_step`` (cut episodes, metrics, policies,
-                    checkpoints), ``finish``,
+  logging           ``Trainer.between_episodes``/``after_step`` (cut episodes, metrics, policies), ``finish``,
                     ``_close_logs``
+  checkpoints       ``Trainer.save_checkpoint`` (state, networks, the replay buffers: GBs at R = 10^7 rows)
   setup             building the trainers, ``start`` (env, networks, demonstrations, logs), ``close`` (the envs)
   driver loop       what is left inside ``train_runs``/``drive`` (run folders, guards, the loop itself): not
                     attributed
@@ -31,6 +31,11 @@ training env step (summed over members):
 "floor" = physics (training + evaluation) + update products. Scheduler idle (a sweep's worker waiting for
 runs) does not exist in one process; the bench says so instead of inventing it. The lean env step is on
 unless ``MANISKILL_DUALHER_LEAN_STEP=0`` (compare the two for the env's share before/after).
+
+A short window checkpoints at a rate no run has: a run writes one every ``checkpoint_every`` env steps (300,000
+in the paper regime), and the window's last step writes one too. So each checkpoint write is timed, and the
+report also gives the total and its floor ratio with the writes charged at the run's own rate (the mean write
+with the replay, times the writes a run of ``total_steps`` makes, per env step): the figure a run sees.
 
     python bench/step_budget.py [--tasks ReachTarget-v1,...] [--members 2] [--steps 3000]
                                 [--learning-starts N] [--set KEY=VALUE ...] [--warmup-steps W] [--out FILE.json]
@@ -79,8 +84,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 PARTS = ("physics", "env python", "env reset", "acting", "episodes+store", "sampling", "priorities",
-         "update products", "update overhead", "update logging", "eval physics", "eval python", "logging+ckpt",
-         "setup", "driver loop")
+         "update products", "update overhead", "update logging", "eval physics", "eval python", "logging",
+         "checkpoints", "setup", "driver loop")
 FLOOR = ("physics", "eval physics", "update products")
 PRODUCTS = ("mm", "bmm", "addmm", "baddbmm", "mv")
 COMPILED_PRODUCTS = ("mm", "bmm", "addmm", "baddbmm")  # inductor's extern kernels (mv: its own loops)
@@ -98,6 +103,7 @@ class Clock:
         self.stack = ["driver loop"]
         self.events = 0
         self.runs = []  # the trainers, as they start (the warm-up's mark reads their counters)
+        self.writes = []  # (wall s, with the replay) of each checkpoint write
         self.marked = None  # (wall, process CPU, updates) at the warm-up's end; None: not yet
         self.reset()
 
@@ -111,6 +117,7 @@ class Clock:
             for p in d:
                 d[p] = 0
         self.events = 0
+        self.writes = []
         self.marked = (time.perf_counter(), time.process_time(), sum(r.count.updates for r in self.runs))
 
     def reset(self) -> None:
@@ -218,8 +225,16 @@ def instrument(warmup_steps: int = 0, compiled: bool = False, fill_rows: int = 0
     T._updates_due = timed(T._updates_due, "update logging")  # the schedule's bookkeeping
     T.sample = timed(T.sample, "sampling")
     T.learn = timed(T.learn, "update logging")
-    T.between_episodes = timed(T.between_episodes, "logging+ckpt")
-    after_step = timed(T.after_step, "logging+ckpt")
+    T.between_episodes = timed(T.between_episodes, "logging")
+    after_step = timed(T.after_step, "logging")
+    save = timed(T.save_checkpoint, "checkpoints")
+
+    def save_and_note(self, replay: bool = True):
+        t = time.perf_counter()
+        out = save(self, replay)
+        CLOCK.writes.append((time.perf_counter() - t, bool(replay)))
+        return out
+    T.save_checkpoint = save_and_note
 
     def after_step_and_mark(self, *a, **kw):
         out = after_step(self, *a, **kw)
@@ -229,8 +244,8 @@ def instrument(warmup_steps: int = 0, compiled: bool = False, fill_rows: int = 0
     T.after_step = after_step_and_mark
     T.evaluate = timed(T.evaluate, "eval python")
     train.evaluate_runs = timed(train.evaluate_runs, "eval python")  # runs due together: side by side
-    T.finish = timed(T.finish, "logging+ckpt")
-    T._close_logs = timed(T._close_logs, "logging+ckpt")
+    T.finish = timed(T.finish, "logging")
+    T._close_logs = timed(T._close_logs, "logging")
     B = envs.BatchEnv
     B.step = timed(B.step, "env python", "eval python")
     B.reset = timed(B.reset, "env reset", "eval python")
@@ -314,8 +329,10 @@ def run(task: str, members: int, steps: int, method: str, learning_starts: Optio
 
     jobs = []
     tmp = tempfile.mkdtemp(prefix="step_budget_")
+    run_steps = None
     for seed in range(members):
         cfg = regime_config(regime, method, seed, task)
+        run_steps = overrides.apply(cfg, sets).total_steps  # a real run's budget: its checkpoints' rate
         cfg.total_steps = steps
         if learning_starts is not None:
             cfg.sac.random_steps = cfg.sac.learning_starts = learning_starts
@@ -348,7 +365,23 @@ def run(task: str, members: int, steps: int, method: str, learning_starts: Optio
             "cpu_s": cpu, "training_env_steps": env_steps, "timer_events": CLOCK.events,
             "updates": sum(int(r["row"]["updates"]) for r in rows) - updates0,
             "parts_wall_s": dict(CLOCK.wall), "parts_cpu_s": dict(CLOCK.cpu), "calls": dict(CLOCK.calls),
-            "intervals": dict(CLOCK.intervals), "cfg": jobs[0].cfg.to_dict()}
+            "intervals": dict(CLOCK.intervals), "cfg": jobs[0].cfg.to_dict(),
+            "checkpoint_writes": [{"wall_s": w, "replay": r} for w, r in CLOCK.writes],
+            "run_total_steps": run_steps}
+
+
+def checkpoints_at_run_rate(res: dict) -> Optional[dict]:
+    """The window's checkpoint writes charged at a real run's rate: the mean write with the replay (s), the writes a
+    run of ``run_total_steps`` makes (one every ``checkpoint_every`` env steps and at its end), and what that costs
+    per env step (s). None when the window wrote none with the replay (or the result predates the field)."""
+    writes = [w["wall_s"] for w in res.get("checkpoint_writes", []) if w["replay"]]
+    total = res.get("run_total_steps")
+    if not writes or not total:
+        return None
+    every = res["cfg"]["checkpoint_every"]
+    mean, n_writes = sum(writes) / len(writes), -(-total // every)
+    return {"mean_write_s": mean, "writes": len(writes), "run_writes": n_writes, "run_steps": total,
+            "every": every, "per_step_s": mean * n_writes / total}
 
 
 def report(res: dict, per_event: dict) -> str:
@@ -390,6 +423,20 @@ def report(res: dict, per_event: dict) -> str:
             lines.append(f"floor with the update products of {fp['from']} ({fp[key]:.3f} ms/step, the same products "
                          f"uncompiled), {name}: {floor:.3f} ms/step against {1e3 * tot / n:.3f}: "
                          f"{1e3 * tot / n / floor:.2f}x its floor")
+    ck = checkpoints_at_run_rate(res)
+    if ck:
+        lines.append(f"checkpoints: {ck['writes']} write(s) with the replay in this window, {ck['mean_write_s']:.2f} s "
+                     f"each on average; a run of {ck['run_steps']:,} env steps writes {ck['run_writes']} (one every "
+                     f"{ck['every']:,} and at its end): {1e3 * ck['per_step_s']:.3f} ms per env step at that rate, "
+                     f"against {1e3 * pw['checkpoints'] / n:.3f} in this window")
+        fp = res.get("floor_products")
+        for name, parts, tot, key in (("wall", pw, tw, "wall_ms"), ("CPU", pc, tc, "cpu_ms")):
+            at_rate = 1e3 * (tot - parts["checkpoints"]) / n + 1e3 * ck["per_step_s"]  # a write's wall, both
+            floor = 1e3 * sum(parts[p] for p in FLOOR) / n
+            if fp:
+                floor = 1e3 * (parts["physics"] + parts["eval physics"]) / n + fp[key]
+            lines.append(f"at a run's checkpoint rate, {name}: {at_rate:.3f} ms/step against a floor of {floor:.3f}"
+                         f"{' (products from ' + fp['from'] + ')' if fp else ''}: {at_rate / floor:.2f}x its floor")
     calls = res["calls"]["env python"]
     for name, parts in (("wall", pw), ("CPU", pc)):
         step = parts["physics"] + parts["env python"]

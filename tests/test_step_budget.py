@@ -80,6 +80,28 @@ def test_warmup_steps_are_not_counted(tmp_path):
     assert f"warm-up of {warm} env steps" in doc["report"][0]
 
 
+def test_checkpoint_writes_are_timed_and_charged_at_a_runs_rate(tmp_path):
+    """A window's last step writes a checkpoint no run writes that often: each write is timed ("checkpoints"), and
+    the report charges the mean write with the replay at the run's own rate (one per checkpoint_every env steps
+    of its full budget, and one at its end)."""
+    import math
+    out = tmp_path / "budget.json"
+    r = _run("--tasks", "ReachTarget-v1", "--members", "1", "--steps", "200", "--learning-starts", "50",
+             "--warmup-steps", "100", "--set", "checkpoint_every=70", "--out", str(out))
+    assert r.returncode == 0, r.stderr[-2000:]
+    doc = json.loads(out.read_text())
+    res = doc["results"][0]
+    writes = [w["wall_s"] for w in res["checkpoint_writes"] if w["replay"]]
+    # every write after the mark is in the list (the one at the end with the replay at least), none before it
+    assert len(writes) >= 1 and res["calls"]["checkpoints"] == len(res["checkpoint_writes"])
+    assert res["parts_wall_s"]["checkpoints"] >= 0.9 * sum(writes) > 0
+    total = res["run_total_steps"]
+    assert total > 200  # the preset's budget, not the window's
+    per_step = sum(writes) / len(writes) * math.ceil(total / 70) / total
+    assert f"{1e3 * per_step:.3f} ms per env step at that rate" in doc["report"][0]
+    assert "at a run's checkpoint rate, wall:" in doc["report"][0]
+
+
 @pytest.mark.slow
 @pytest.mark.skipif(shutil.which("c++") is None and shutil.which("g++") is None, reason="no C++ compiler")
 def test_a_compiled_update_has_its_products_timed(tmp_path):
