@@ -147,8 +147,8 @@ def sequential_lines(curves: Sequence[Dict[str, str]]) -> List[str]:
         if not seeds:
             continue
         look = stats.sequential_look([final[ma][k][1] - final[mb][k][1] for k in seeds])
-        line = (f"- {exp}/{arm}, {ma} minus {mb}, successful training episodes, paired on seeds "
-                f"{seeds[0]}-{seeds[-1]} ({len(seeds)} pairs): **{look['decision']}**")
+        on = f"seed {seeds[0]} (1 pair)" if len(seeds) == 1 else f"seeds {seeds[0]}-{seeds[-1]} ({len(seeds)} pairs)"
+        line = f"- {exp}/{arm}, {ma} minus {mb}, successful training episodes, paired on {on}: **{look['decision']}**"
         if "t" in look:
             line += (f" at the look at {look['pairs']} pairs (t = {look['t']:.3g} against {look['critical']}; "
                      f"repeated confidence interval [{look['rci_low']:.3g}, {look['rci_high']:.3g}]; sensitivity: "
