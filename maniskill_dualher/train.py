@@ -46,6 +46,7 @@ from .faults import hold_point
 from .pack import Updater
 from .policy import save_policy
 from .replay.base import Episode
+from .replay.storage import consuming_loaded_state
 from .rundir import CELL, CONFIG, POLICY, POLICY_BEST, RunFolder, array_state, load_checkpoint
 from .sac import SAC
 
@@ -446,7 +447,12 @@ class Trainer:
 
     def _restore(self, state: dict) -> None:
         self.agent.load_full_state(state["agent"])
-        self.method.load_state_dict(array_state(state["method"]))  # the replay lives in numpy
+        # the replay lives in numpy; taken out of the state so that loading moves it into the buffers field by
+        # field instead of holding the file's copy beside them (GBs at R = 10^7 rows)
+        replay = array_state(state.pop("method"))
+        with consuming_loaded_state():
+            self.method.load_state_dict(replay)
+        del replay
         self.count = Counters.from_state(state["counters"])
         self.rows = list(state["rows"])
         self.diag.load_state_dict(state.get("diag"))

@@ -106,8 +106,13 @@ def test_a_carried_stage_counts_its_parents_rows_and_reads_them_at_its_start():
     carried = run_memory(adapt, carried=[source])
     assert carried.rows == {"R": 150_000 * 9} and alone.rows == {"R": 50_000 * 9}
     assert carried.loaded_bytes == 100_000 * 9 * 401 and alone.loaded_bytes == 0
-    resumed = run_memory(adapt, resume=True)  # its own checkpoint, counted at its end size
-    assert resumed.loaded_bytes == resumed.replay_bytes
+    # a resume moves its own checkpoint in field by field: the largest field (observation || goal, 43 float32)
+    # and the rest of the row outside the transition (the sum tree's 16 B, SAC+HER+PER's 1 B mark) held twice,
+    # counted at its end size; a full buffer's arrays are adopted, so only that rest
+    resumed = run_memory(adapt, resume=True)
+    assert resumed.loaded_bytes == 50_000 * 9 * (43 * 4 + 17) < resumed.replay_bytes / 2
+    full = run_memory(_cfg(steps=50_000, her_k=8, capacity=100_000), resume=True)
+    assert full.rows == {"R": 100_000} and full.loaded_bytes == 100_000 * 17
 
 
 def test_plan_shrinks_packs_then_workers_then_refuses():
@@ -191,3 +196,63 @@ def test_the_dry_runs_estimate_for_the_paper_regime_lands_within_15_percent_of_i
         assert abs(estimate - measured) <= 0.15 * measured, (n.cfg.method, estimate, measured)
     dual = next(n for n in adapt if n.cfg.method == "dual_buffer")
     assert node_memory(dual).peak > 1.15 * measured  # the bound the plan fits stays a bound
+
+
+_RESUME_SCRIPT = r"""
+import json, sys
+import numpy as np
+sys.path.insert(0, sys.argv[4])
+from batched_goal_env import register
+from maniskill_dualher.config import ReplayConfig, RunConfig, SACConfig
+from maniskill_dualher.replay.buffer import transition_fields
+from maniskill_dualher.train import Trainer
+
+mode, out, rows = sys.argv[1], sys.argv[2], int(sys.argv[3])
+cfg = RunConfig(env_id=register(1), method="sac_her_per", seed=1, total_steps=10_000, max_episode_steps=20,
+                num_envs=1, eval_every=10**6, eval_episodes=1, checkpoint_every=10**6,
+                sac=SACConfig(random_steps=10**9, learning_starts=10**9, batch_size=16, hidden=(16, 16)),
+                replay=ReplayConfig(capacity=1_500_000, her_k=2))
+t = Trainer(cfg, out, show_progress=False)
+buf = t.method.buffers["R"]
+if mode == "write":
+    rng = np.random.default_rng(0)
+    fields = transition_fields(t.method.obs_dim, t.method.act_dim)
+    while len(buf) < rows:
+        n = min(250_000, rows - len(buf))
+        buf.add({k: rng.standard_normal((n, *s)).astype(d) if s else np.zeros(n, d) for k, (s, d) in fields.items()})
+    t.save_checkpoint()
+else:
+    status = dict(l.split(":", 1) for l in open("/proc/self/status") if ":" in l)
+    kb = lambda k: int(status[k].split()[0]) * 1024
+    stored = sum(a.nbytes for a in buf.storage._data.values())
+    print(json.dumps({"resumed": t.resumed, "rows": len(buf), "hwm": kb("VmHWM"), "rss": kb("VmRSS"),
+                      "stored": stored, "largest": max(a.nbytes for a in buf.storage._data.values())}))
+t.close()
+"""
+
+
+@pytest.mark.parametrize("rows", [1_500_000, 1_200_000])
+def test_a_resume_holds_its_replay_about_once(tmp_path, rows):
+    """Measured in a fresh process (VmHWM against VmRSS once the run is built): resuming from a checkpoint whose
+    replay is full adopts the file's arrays (the transient above what the run then holds is a small part of the
+    replay), and from a partial one holds at most one field twice, never the whole replay (the file's copy beside
+    the buffer's was 8.3 GB at R = 10^7 rows, paper_regime_confirm/HOW_MADE.md part 12)."""
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+    if not Path("/proc/self/status").is_file():
+        pytest.skip("needs /proc")
+    tests = str(Path(__file__).parent)
+    run = lambda mode: subprocess.run([sys.executable, "-c", _RESUME_SCRIPT, mode, str(tmp_path / "run"),  # noqa: E731
+                                       str(rows), tests], capture_output=True, text=True, timeout=600)
+    w = run("write")
+    assert w.returncode == 0, w.stderr[-2000:]
+    r = run("resume")
+    assert r.returncode == 0, r.stderr[-2000:]
+    m = json.loads(r.stdout.strip().splitlines()[-1])
+    assert m["resumed"] and m["rows"] == rows
+    transient = m["hwm"] - m["rss"]
+    leaves = 8 * rows  # the sum tree's leaves: read, then copied into the rebuilt tree
+    field = 0 if rows == 1_500_000 else m["largest"] * rows // 1_500_000  # a partial buffer's largest field
+    assert transient < leaves + field + 0.1 * m["stored"], (transient, m)  # holding it twice: leaves + stored

@@ -22,8 +22,10 @@ the estimate the dry run prints takes a method's ``replay_typical`` instead wher
 episode, as episodes end at their first success),
 the rows of the earlier chain stages it carries counted in) x bytes per row (``replay_row_bytes``: the transition's
 floats, the sum tree's, the method's own per-row arrays), its networks with their gradients and Adam moments
-(``network_bytes``), and, while it starts from a replay (a carried parent's, or its own checkpoint on a resume),
-that replay once more as read from the file. A worker adds its process (imports, env, episode arrays) once and
+(``network_bytes``), and, while it starts from a replay, what of it is held twice: a carried parent's replay
+whole (read from the file, then copied in); on a resume its own checkpoint's largest field per row plus the
+rest of the row outside the transition (``replay.storage.consuming_loaded_state`` moves the fields in one at a
+time; a full buffer's arrays become the storage, so only the rest of its row counts). A worker adds its process (imports, env, episode arrays) once and
 ``RUN_BYTES`` per further run of its pack. ``plan_memory`` fits the sweep's workers x runs per worker into the
 memory this machine has available (``available_memory``), packing fewer runs per worker, then using fewer workers,
 or refusing when one run alone does not fit.
@@ -395,12 +397,28 @@ def run_memory(cfg, carried: Sequence = (), resume: bool = False, obs_dim: int =
         t_rows[name] = min(rows[name], int(math.ceil(t_old + cfg.total_steps * min(typical(cfg)[name], per_step) - 1e-6)))
     mem = RunMemory(label or f"{cfg.method} {cfg.env_id}", rows, sizes, network_bytes(cfg.sac, obs_dim, act_dim))
     at_start = rows if resume else before
-    mem.loaded_bytes = sum(at_start[k] * sizes[k] for k in rows)
+    mem.loaded_bytes = sum(_held_twice(at_start[k], sizes[k], cap, resume, obs_dim, act_dim) for k in rows)
     if t_rows != rows:
         mem.typical_rows = t_rows
         t_start = t_rows if resume else t_before
-        mem.typical_loaded_bytes = sum(t_start[k] * sizes[k] for k in rows)
+        mem.typical_loaded_bytes = sum(_held_twice(t_start[k], sizes[k], cap, resume, obs_dim, act_dim)
+                                       for k in rows)
     return mem
+
+
+def _held_twice(rows: int, row_bytes: int, capacity: int, resume: bool, obs_dim: int, act_dim: int) -> int:
+    """Bytes of a buffer of ``rows`` rows held twice while a run starts from it: all of it for a carried
+    parent's replay; on a resume (fields moved in one at a time) the largest transition field and the rest of
+    the row (sum tree, a method's own arrays), and only that rest once the buffer is full (its arrays adopted)."""
+    if not resume:
+        return rows * row_bytes
+    import numpy as np
+
+    from ..replay.buffer import transition_fields
+    fields = [int(np.prod(shape, dtype=np.int64)) * np.dtype(dtype).itemsize
+              for shape, dtype in transition_fields(obs_dim, act_dim).values()]
+    rest = row_bytes - sum(fields)
+    return rows * (rest + (0 if rows >= capacity else max(fields)))
 
 
 def node_memory(node, resume: bool = False) -> RunMemory:

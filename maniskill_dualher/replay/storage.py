@@ -6,13 +6,31 @@ not given, taken from the first ``add``.
 """
 from __future__ import annotations
 
-from typing import Dict, Mapping, Optional, Tuple
+import contextlib
+import contextvars
+from typing import Dict, Iterator, Mapping, Optional, Tuple
 
 import numpy as np
 
 from ..config import ConfigError
 
 FieldSpec = Mapping[str, Tuple[Tuple[int, ...], np.dtype]]
+
+_CONSUMING = contextvars.ContextVar("consuming_loaded_state", default=False)
+
+
+@contextlib.contextmanager
+def consuming_loaded_state() -> Iterator[None]:
+    """Inside it, ``RingStorage.load_state_dict`` takes the arrays of the state it is given: a full buffer's
+    arrays become its storage (no copy), any other's are copied and dropped from the state one field at a time.
+    A resumed run then holds its replay about once while it loads, not twice (the file's copy beside the
+    buffer's: 8.3 GB instead of 4.5 at R = 10^7 rows). Only for a state nothing reads afterwards: a checkpoint
+    just read from its file (``Trainer._restore``); a state loaded twice (a shared prior) must not use it."""
+    token = _CONSUMING.set(True)
+    try:
+        yield
+    finally:
+        _CONSUMING.reset(token)
 
 
 class RingStorage:
@@ -89,9 +107,19 @@ class RingStorage:
     def load_state_dict(self, state: dict) -> None:
         if int(state["capacity"]) != self.capacity:
             raise ConfigError(f"checkpoint storage capacity {state['capacity']} != configured {self.capacity}")
-        self._allocate({k: (tuple(s), np.dtype(d)) for k, (s, d) in state["fields"].items()})
-        size = int(state["size"])
-        for k, v in state["data"].items():
-            self._data[k][:size] = v
+        fields = {k: (tuple(s), np.dtype(d)) for k, (s, d) in state["fields"].items()}
+        size, data, consume = int(state["size"]), state["data"], _CONSUMING.get()
+        self._data = {}
+        for k, (shape, dtype) in fields.items():
+            v = data[k]
+            if (consume and size == self.capacity and isinstance(v, np.ndarray)
+                    and v.shape == (self.capacity, *shape) and v.dtype == dtype
+                    and v.flags.c_contiguous and v.flags.writeable):
+                self._data[k] = v  # the file's array is the storage
+            else:
+                self._data[k] = np.zeros((self.capacity, *shape), dtype=dtype)
+                self._data[k][:size] = v
+            if consume:
+                data[k] = None  # the file's copy goes once this field is in place
         self._size = size
         self._cursor = int(state["cursor"])
