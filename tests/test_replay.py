@@ -272,3 +272,33 @@ def test_sumtree_update_recomputes_small_rows_whole_and_keeps_the_bits(monkeypat
     monkeypatch.undo()
     assert adds and max(adds) <= 8 * 16 < 70_000 // 2  # only rows of at most ROW_FACTOR x 16 nodes went whole
     assert t.tree.tobytes() == ref.tree.tobytes()
+
+
+@pytest.mark.parametrize("size", [50, 37])
+def test_a_storage_loaded_from_its_file_by_consuming_it_goes_on_as_the_original(tmp_path, size):
+    """A checkpoint's storage loaded inside ``consuming_loaded_state``: a full one adopts the file's arrays (they are
+    its storage), a partial one is copied and each field dropped from the state; either way the loaded storage then
+    takes new rows (wrapping past the end) exactly as the original does, and the state no longer holds the data."""
+    import torch
+
+    from maniskill_dualher.replay.storage import RingStorage, consuming_loaded_state
+    from maniskill_dualher.rundir import array_state, file_state, load_torch_file
+
+    rng = np.random.default_rng(0)
+    rows = lambda n: {"obs": rng.standard_normal((n, 3)).astype(np.float32), "done": np.ones(n, np.float32)}  # noqa: E731
+    a = RingStorage(50)
+    a.add(rows(size))
+    torch.save(file_state(a.state_dict()), tmp_path / "s.pt")
+    state = array_state(load_torch_file(tmp_path / "s.pt", "test"))
+    b = RingStorage(50)
+    with consuming_loaded_state():
+        b.load_state_dict(state)
+    assert all(v is None for v in state["data"].values())
+    full = size == 50
+    assert (b._data["obs"].base is not None) == full  # adopted: a view of the file's tensor; copied: its own array
+    more = rows(30)
+    a.add(more)
+    b.add(more)
+    assert len(a) == len(b) and all(np.array_equal(a._data[k], b._data[k]) for k in a._data)
+    idx = np.arange(50)
+    assert all(np.array_equal(a.get(idx)[k], b.get(idx)[k]) for k in a._data)
