@@ -384,6 +384,15 @@ def checkpoints_at_run_rate(res: dict) -> Optional[dict]:
             "every": every, "per_step_s": mean * n_writes / total}
 
 
+def _floor_ms(res: dict, parts: dict, key: str) -> float:
+    """The floor per env step (ms): physics, evaluation physics and the update's products, those taken from
+    ``--floor-products-from``'s run when given (``key``: its "wall_ms" or "cpu_ms")."""
+    n, fp = res["training_env_steps"], res.get("floor_products")
+    if fp:
+        return 1e3 * (parts["physics"] + parts["eval physics"]) / n + fp[key]
+    return 1e3 * sum(parts[p] for p in FLOOR) / n
+
+
 def report(res: dict, per_event: dict) -> str:
     n = res["training_env_steps"]
     wall, cpu = res["wall_s"], res["cpu_s"]
@@ -419,7 +428,7 @@ def report(res: dict, per_event: dict) -> str:
     if res.get("floor_products"):  # a compiled update calls its products from C++, where no timer sees them
         fp = res["floor_products"]
         for name, parts, tot, key in (("wall", pw, tw, "wall_ms"), ("CPU", pc, tc, "cpu_ms")):
-            floor = 1e3 * (parts["physics"] + parts["eval physics"]) / n + fp[key]
+            floor = _floor_ms(res, parts, key)
             lines.append(f"floor with the update products of {fp['from']} ({fp[key]:.3f} ms/step, the same products "
                          f"uncompiled), {name}: {floor:.3f} ms/step against {1e3 * tot / n:.3f}: "
                          f"{1e3 * tot / n / floor:.2f}x its floor")
@@ -432,9 +441,7 @@ def report(res: dict, per_event: dict) -> str:
         fp = res.get("floor_products")
         for name, parts, tot, key in (("wall", pw, tw, "wall_ms"), ("CPU", pc, tc, "cpu_ms")):
             at_rate = 1e3 * (tot - parts["checkpoints"]) / n + 1e3 * ck["per_step_s"]  # a write's wall, both
-            floor = 1e3 * sum(parts[p] for p in FLOOR) / n
-            if fp:
-                floor = 1e3 * (parts["physics"] + parts["eval physics"]) / n + fp[key]
+            floor = _floor_ms(res, parts, key)
             lines.append(f"at a run's checkpoint rate, {name}: {at_rate:.3f} ms/step against a floor of {floor:.3f}"
                          f"{' (products from ' + fp['from'] + ')' if fp else ''}: {at_rate / floor:.2f}x its floor")
     calls = res["calls"]["env python"]

@@ -25,8 +25,8 @@ floats, the sum tree's, the method's own per-row arrays), its networks with thei
 (``network_bytes``), and, while it starts from a replay, what of it is held twice: a carried parent's replay
 whole (read from the file, then copied in); on a resume its own checkpoint's largest field per row plus the
 rest of the row outside the transition (``replay.storage.consuming_loaded_state`` moves the fields in one at a
-time; a full buffer's arrays become the storage, so only the rest of its row counts). A worker adds its process (imports, env, episode arrays) once and
-``RUN_BYTES`` per further run of its pack. ``plan_memory`` fits the sweep's workers x runs per worker into the
+time; a full buffer's arrays become the storage, so only the rest of its row counts). A worker adds its process
+(imports, env, episode arrays) once and ``RUN_BYTES`` per further run of its pack. ``plan_memory`` fits the sweep's workers x runs per worker into the
 memory this machine has available (``available_memory``), packing fewer runs per worker, then using fewer workers,
 or refusing when one run alone does not fit.
 """
@@ -301,12 +301,16 @@ def replay_row_bytes(obs_dim: int = 43, act_dim: int = 8, prioritized: bool = Tr
     uniform, 400 B prioritized (401 B with SAC+HER+PER's mark). A bare prioritized buffer grows by 400 B per row
     between 300k and 1.5M rows (bench/run_memory.py, CPU B); below that a fixed ~20 MB more, numpy's transparent
     huge pages (each array region in use ends in a partly used 2 MiB page), which ``PROCESS_BYTES`` holds."""
+    return sum(_field_bytes(obs_dim, act_dim)) + (2 * SUM_TREE_NODE_BYTES if prioritized else 0) + int(extra)
+
+
+def _field_bytes(obs_dim: int, act_dim: int) -> List[int]:
+    """Bytes per row of each transition field (``replay.buffer.transition_fields``)."""
     import numpy as np
 
     from ..replay.buffer import transition_fields
-    row = sum(int(np.prod(shape, dtype=np.int64)) * np.dtype(dtype).itemsize
-              for shape, dtype in transition_fields(obs_dim, act_dim).values())
-    return row + (2 * SUM_TREE_NODE_BYTES if prioritized else 0) + int(extra)
+    return [int(np.prod(shape, dtype=np.int64)) * np.dtype(dtype).itemsize
+            for shape, dtype in transition_fields(obs_dim, act_dim).values()]
 
 
 _NET_BYTES: Dict[tuple, int] = {}
@@ -412,11 +416,7 @@ def _held_twice(rows: int, row_bytes: int, capacity: int, resume: bool, obs_dim:
     the row (sum tree, a method's own arrays), and only that rest once the buffer is full (its arrays adopted)."""
     if not resume:
         return rows * row_bytes
-    import numpy as np
-
-    from ..replay.buffer import transition_fields
-    fields = [int(np.prod(shape, dtype=np.int64)) * np.dtype(dtype).itemsize
-              for shape, dtype in transition_fields(obs_dim, act_dim).values()]
+    fields = _field_bytes(obs_dim, act_dim)
     rest = row_bytes - sum(fields)
     return rows * (rest + (0 if rows >= capacity else max(fields)))
 
