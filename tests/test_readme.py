@@ -221,4 +221,18 @@ def test_paper_regime_counts_stand_beside_the_random_arm():
     for shown, value in zip(m.groups(), (claim["mean_a"], claim["mean_b"], random_row["successes_mean"])):
         decimals = len(shown.partition(".")[2])  # as many as the README shows, rounded
         assert float(shown) == pytest.approx(float(value), abs=0.5 * 10 ** -decimals), (shown, value)
-    assert f"{claim['n_a']} of the preregistered study's 16 pairs" in finding
+    pairs = int(claim["n_a"])
+    if pairs < 16:
+        assert f"{pairs} of the preregistered study's 16 pairs" in finding
+        assert "no verdict" in finding, "an unfinished study gives no verdict"
+        return
+    # all 16 pairs: the preregistered verdict, in claims.csv's words, with its interval as the README rounds it
+    assert "the preregistered study's 16 pairs" in finding
+    verdict = claim["verdict"].split(" (")[0]
+    m = re.search(r"(−?[\d.]+) \[(−?[\d.]+), (−?[\d.]+)\] \(`regime_count_episode`\): ([a-z ]+)", finding)
+    assert m, "the paper-regime sentence gives the preregistered claim's difference, interval and verdict"
+    for shown, value in zip(m.groups()[:3], (claim["diff"], claim["diff_ci95_low"], claim["diff_ci95_high"])):
+        shown = shown.replace("−", "-")
+        decimals = len(shown.partition(".")[2])
+        assert float(shown) == pytest.approx(float(value), abs=0.5 * 10 ** -decimals), (shown, value)
+    assert m.group(4).strip() == verdict, (m.group(4), verdict)
