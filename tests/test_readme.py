@@ -5,6 +5,7 @@ sentence is the difference or the ratio of means of a claim that sentence cites,
 claim decided at 95% that does not survive Holm carries a dagger, one that survives carries none. Hand-edited
 numbers drift when the reference is re-merged; this catches it."""
 import re
+import subprocess
 from pathlib import Path
 
 import pytest
@@ -236,3 +237,19 @@ def test_paper_regime_counts_stand_beside_the_random_arm():
         decimals = len(shown.partition(".")[2])
         assert float(shown) == pytest.approx(float(value), abs=0.5 * 10 ** -decimals), (shown, value)
     assert m.group(4).strip() == verdict, (m.group(4), verdict)
+
+
+# --------------------------------------------------------------------------- committed prose stays prose
+def test_no_committed_markdown_repeats_a_paragraph():
+    """An edit script once replaced the empty string, which writes its new paragraph between every character of a
+    file (results/paper_regime/HOW_MADE.md grew from 80 to 81,889 lines and was committed so): no committed
+    Markdown file repeats a paragraph, or holds runs of one-character lines."""
+    files = subprocess.run(["git", "ls-files", "*.md"], cwd=REPO, capture_output=True, text=True).stdout.split()
+    assert len(files) >= 10
+    for name in files:
+        text = (REPO / name).read_text()
+        paragraphs = [p.strip() for p in text.split("\n\n") if len(p.strip()) > 200]
+        repeated = {p[:60] for p in paragraphs if paragraphs.count(p) > 1}
+        assert not repeated, (name, repeated)
+        lines = text.splitlines()
+        assert sum(len(line) == 1 for line in lines) <= 20, f"{name}: {len(lines)} lines, most of one character"
