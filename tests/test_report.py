@@ -123,11 +123,12 @@ def test_claims_are_computed_from_the_numbers(folder):
     assert float(a["welch_ci95_low"]) > 0 and float(a["prob_improvement"]) == 1.0
     assert claims["c"]["verdict"] == "reproduced"         # 0.6/0.4: 10..14 vs 0.5/0.5: 4..8
     assert claims["d"]["verdict"].startswith("not measured")  # no 0.7/0.3 runs
-    # CloseBox curves: dual [0, 5..7] vs sac [0, 0..2], paired by seed on 3 seeds: below 5 pairs no interval
-    # decides (the bootstrap-t is unstable there); the paired t and the sign-flip p stand beside as sensitivity
+    # CloseBox curves: dual [0, 5..7] vs sac [0, 0..2], paired by seed on 3 seeds: below 5 pairs no paired
+    # interval (the bootstrap-t is unstable there), the paired t's included; the exact sign-flip p stays
     f = claims["f"]
     assert f["verdict"] == "inconclusive (interval not computed below 5 pairs)" and f["diff_ci95_low"] == "nan"
-    assert 0 < float(f["paired_t_ci95_low"]) <= float(f["diff"]) <= float(f["paired_t_ci95_high"])
+    assert f["paired"] == "yes" and f["paired_t_ci95_low"] == f["paired_t_ci95_high"] == ""
+    assert f["p_value"] == "nan" and f["p_holm"] == ""
     assert float(f["signflip_p"]) == pytest.approx(2 / 8)    # 3 pairs, all one sign: 2 of the 8 sign patterns
     assert claims["e"]["verdict"].startswith("not measured")
     assert claims["h"]["verdict"].startswith("not measured")  # no from-scratch control in this folder
@@ -136,6 +137,40 @@ def test_claims_are_computed_from_the_numbers(folder):
     line = next(ln for ln in s.splitlines() if ln.startswith("| a |"))
     assert "**reproduced**" in line and "Table 5: 250 vs <45" in line
     assert "compare directions" in s and "claims were tested" in s
+
+
+def test_the_multiplicity_sentence_counts_the_claims_holm_adjusts(folder):
+    """summary.md's "N claims were tested" counts the claims with a finite p-value, the ones Holm adjusts (the sum
+    of Holm's family sizes); a measured claim without an interval (f: 3 pairs) is named apart, not counted."""
+    report.build_report(folder)
+    claims = _table(folder / "claims.csv")
+    with_p = [r["claim"] for r in claims if r["p_value"] not in ("", "nan")]
+    assert with_p == [r["claim"] for r in claims if r["p_holm"]]          # Holm's families hold exactly these
+    measured = [r["claim"] for r in claims if r["diff"]]
+    assert "f" in measured and "f" not in with_p and len(with_p) >= 2
+    s = (folder / "summary.md").read_text()
+    n = len(with_p)
+    assert f"{n} claims were tested, each at 95%; with {n} independent tests" in s
+    assert f"Bonferroni over all of them would use {1 - 0.05 / n:.2%} per claim" in s
+    rest = [k for k in measured if k not in with_p]
+    assert f"{len(rest)} measured claim{'s' if len(rest) > 1 else ''} ha{'ve' if len(rest) > 1 else 's'} no " \
+           f"interval (too few seeds or pairs), hence no p-value" in s and f"left out of Holm: {', '.join(rest)}." in s
+
+
+def test_the_presets_budgets_are_called_defaults_where_arms_ran_their_own():
+    """summary.md's budget line names the preset's budgets as defaults, and where adaptation curves exist points to
+    the next line, the budgets as run (an arm's settings may override the preset's: paper_regime's 3.6M)."""
+    from maniskill_dualher.analysis.report import summary_md
+    budgets = {"single": {"CloseBox-v1": 10}, "source": {"CloseBox-v1": 6}, "adapt": {"CloseBox-v1": 12}}
+    tables = {n: [] for n in ("table5_multitask.csv", "table4_sampling_ratio.csv", "ablations.csv",
+                              "single_task.csv")}
+    curves = [{"experiment": "paper_regime", "arm": "episode", "run": "r0", "role": "adapt", "env_steps": "3600000"}]
+    lines = summary_md("x", {"budgets": budgets}, [], tables, [], [], [], curves=curves).splitlines()
+    assert lines[3].startswith("The preset's default budgets (env steps; an arm's settings may override them: "
+                               "as run on the next line): single-task")
+    assert lines[4].startswith("Adaptation budgets as run") and "3,600,000 env steps" in lines[4]
+    alone = summary_md("x", {"budgets": budgets}, [], tables, [], [], []).splitlines()
+    assert alone[3].startswith("The preset's default budgets (env steps): single-task")
 
 
 def test_scratch_control_sits_beside_transfer(folder):

@@ -297,13 +297,27 @@ def test_pairs_to_decide_is_the_exact_paired_t_power():
     assert c.seeds_to_decide == n and f"~{n} pairs would likely decide it" in c.verdict_text()
 
 
-def test_no_paired_interval_below_five_pairs_but_the_sensitivity_columns_are_there():
+def test_no_paired_interval_below_five_pairs_the_paired_t_included():
+    """The rule "no paired interval below 5 pairs" holds for every paired interval: the bootstrap-t that decides,
+    the paired t beside it and the paired ratio interval; the exact sign-flip p (a test, not an interval) stays."""
     a, b = np.array([77.0, 371, 479, 298]), np.array([161.0, 354, 461, 422])
     c = stats.compare(a, b, 30.0, paired=True)
     assert np.isnan(c.ci_low) and np.isnan(c.ci_high) and c.verdict == stats.INCONCLUSIVE
     assert "not computed below 5 pairs" in c.verdict_text()
-    assert c.paired_t_low < c.diff < c.paired_t_high and 0 < c.signflip_p <= 1
-    assert not np.isnan(stats.compare(np.append(a, 229.0), np.append(b, 171.0), 30.0, paired=True).ci_low)
+    assert np.isnan(c.paired_t_low) and np.isnan(c.paired_t_high) and np.isnan(c.p_value)
+    assert c.signflip_p == pytest.approx(stats.signflip_p(a - b)) and 0 < c.signflip_p <= 1
+    rho, lo, hi = stats.ratio_ci(a, b, 1000, paired=True)
+    assert rho == pytest.approx(a.mean() / b.mean()) and np.isnan(lo) and np.isnan(hi)
+    assert not np.isnan(stats.ratio_ci(a, b, 1000)[1])          # unpaired, 4 seeds per side: an interval
+    five = stats.compare(np.append(a, 229.0), np.append(b, 171.0), 30.0, paired=True)
+    assert not np.isnan(five.ci_low) and five.paired_t_low < five.diff < five.paired_t_high
+    assert not np.isnan(stats.ratio_ci(np.append(a, 229.0), np.append(b, 171.0), 1000, paired=True)[1])
+
+
+def test_the_methods_sentence_names_both_floors():
+    """summary.md's methods text (stats.CI_METHOD): Welch's floor for two samples, the paired t for paired claims."""
+    assert "never narrower than Welch's t interval" in stats.CI_METHOD
+    assert "paired claims" in stats.CI_METHOD and "never narrower than the paired t interval" in stats.CI_METHOD
 
 
 def test_an_equivalence_read_off_a_floor_is_uninformative_not_decided():

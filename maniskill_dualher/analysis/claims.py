@@ -444,9 +444,10 @@ def _claim_row(scores, c: Claim, resamples: int) -> dict:
                 "p_value": cmp.p_value, "p_equivalence": cmp.p_equivalence,
                 "machines": "; ".join(sorted(_machines(list(rows_a.values()) + list(rows_b.values())))),
                 "machines_by_side": by_side, "machine_balanced": balanced})
-    if cmp.paired:   # sensitivity analyses beside the verdict's interval (stats.compare)
-        row.update({"paired_t_ci95_low": cmp.paired_t_low, "paired_t_ci95_high": cmp.paired_t_high,
-                    "signflip_p": cmp.signflip_p})
+    if cmp.paired:   # sensitivity analyses beside the verdict's interval (stats.compare); no paired t interval
+        row["signflip_p"] = cmp.signflip_p   # below stats.MIN_PAIRS pairs: its columns stay empty there
+        if cmp.paired_t_low == cmp.paired_t_low:
+            row.update({"paired_t_ci95_low": cmp.paired_t_low, "paired_t_ci95_high": cmp.paired_t_high})
     if seeds is not None and len(a) > 2 and np.std(a) > 0 and np.std(b) > 0:
         row["pair_corr"] = float(np.corrcoef(a, b)[0, 1])  # what pairing gains: the per-seed correlation
     if c.post_hoc:

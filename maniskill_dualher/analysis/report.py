@@ -96,6 +96,12 @@ def adapt_budgets(curves: Sequence[dict]) -> Dict[tuple, int]:
     return {k: min(v.values()) for k, v in last.items()}
 
 
+def has_p(r: dict) -> bool:
+    """The claim has a finite p-value: the ones Holm and Benjamini-Hochberg adjust (``claims._adjust``)."""
+    p = r.get("p_value")
+    return isinstance(p, float) and p == p
+
+
 FAMILY_TITLES = [f"{t} (`{g}`)" for g, t in claims_mod.FAMILIES.items()]
 
 
@@ -108,8 +114,9 @@ def summary_md(name: str, sweep: Optional[dict], scores, tables, claims, figures
              + (f"; {plural(len(unfinished), 'run')} unfinished (not counted)" if unfinished else "") + ".")
     if sweep.get("budgets"):
         b = sweep["budgets"]
-        s.append(f"The preset's budgets (env steps): single-task {b['single']}; source stage {b['source']}; "
-                 f"adaptation {b['adapt']}.")
+        s.append(f"The preset's default budgets (env steps"
+                 + ("; an arm's settings may override them: as run on the next line" if adapt_budgets(curves) else "")
+                 + f"): single-task {b['single']}; source stage {b['source']}; adaptation {b['adapt']}.")
     ran = adapt_budgets(curves)
     if ran:
         by_n: Dict[int, List[str]] = {}
@@ -138,7 +145,9 @@ def summary_md(name: str, sweep: Optional[dict], scores, tables, claims, figures
           "`curves.csv` (one row per evaluation): `python -m maniskill_dualher.report <this folder>` rebuilds them "
           "without the run folders.", ""]
     decided = [r for r in claims if claims_mod.decided(r)]
-    tested = [r for r in claims if "diff" in r]
+    # the claims Holm adjusts: those with a finite p-value (none below MIN_SEEDS per side or MIN_PAIRS pairs)
+    tested = [r for r in claims if has_p(r)]
+    untested = [r for r in claims if "diff" in r and not has_p(r)]
     s += ["## Verdicts (`claims.csv`)", "",
           "Each claim is 'A > B' (the paper's direction, or the ablation's question). Each side is one score "
           "per seed; the difference of means A - B gets a 95% interval (" + stats.CI_METHOD
@@ -163,9 +172,12 @@ def summary_md(name: str, sweep: Optional[dict], scores, tables, claims, figures
           "(Tables 4, 5) the ratio of means A/B has a 95% interval (the ratios the same interval does not "
           "exclude) and `paper_size` says whether an effect of the paper's size is excluded in this setting; "
           "the paper reports one run per side, no spread.", "",
-          f"{len(decided)} of {len(claims)} claims decided at 95%, "
-          f"{sum(r.get('survives_holm') == 'yes' for r in claims)} of them after Holm within their family. "
-          + (stats.multiplicity_note(len(tested)) if tested else ""), ""]
+          " ".join([f"{len(decided)} of {len(claims)} claims decided at 95%, "
+                    f"{sum(r.get('survives_holm') == 'yes' for r in claims)} of them after Holm within their family."]
+                   + ([stats.multiplicity_note(len(tested))] if tested else [])
+                   + ([f"{plural(len(untested), 'measured claim')} {'has' if len(untested) == 1 else 'have'} no "
+                       f"interval (too few seeds or pairs), hence no p-value, and {'is' if len(untested) == 1 else 'are'}"
+                       f" left out of Holm: {', '.join(r['claim'] for r in untested)}."] if untested else [])), ""]
     unbalanced = [r["claim"] for r in claims if r.get("machine_balanced") == "no"]
     if unbalanced:
         s += ["Claims whose two sides are unbalanced by machine (a machine holds a different share of A's seeds "

@@ -101,8 +101,9 @@ both sides have it; when the seeds that pair are at least half of the smaller si
 decided on every seed, unpaired. For the per-seed differences x_s = A_s - B_s, ``compare(..., paired=True)``
 gives the same symmetric bootstrap-t on the one sample x (resampling seeds, studentized by sd(x*)/sqrt(n)),
 floored at the paired t interval, and the advice counts pairs, exactly (``pairs_to_decide``: the noncentral t
-power of the paired t test at the observed mean and sd of x). Below ``MIN_PAIRS`` (5) pairs no interval is
-computed: at 4 pairs, near-equal differences make resamples of tiny spread and |t*| a huge quantile. Beside
+power of the paired t test at the observed mean and sd of x). Below ``MIN_PAIRS`` (5) pairs no paired interval
+is computed (neither this one, nor the paired t, nor a paired ratio interval; the sign-flip p stays): at 4 pairs,
+near-equal differences make resamples of tiny spread and |t*| a huge quantile. From 5 pairs on, beside
 it, as sensitivity analyses that never set the verdict: the paired t interval (``paired_t_low``/``_high``)
 and the exact sign-flip permutation p (``signflip_p``); the Welch columns stay the two-sample interval that
 ignores the pairing. It is the same code path as the two-sample interval with B = 0 (one stratum, df = n - 1); when
@@ -170,7 +171,9 @@ BOOT_T = "symmetric bootstrap-t"   # ci_method values
 WELCH = "welch-t"
 WELCH_FALLBACK = "welch-t (bootstrap-t degenerate)"
 NO_SPREAD = "exact (no spread)"
-CI_METHOD = "symmetric bootstrap-t: resampled Welch t statistics, never narrower than Welch's t interval"
+CI_METHOD = ("symmetric bootstrap-t: resampled Welch t statistics, never narrower than Welch's t interval; for "
+             "paired claims, resampled one-sample t statistics of the per-seed differences, never narrower than "
+             "the paired t interval")
 
 # Relative to the data's magnitude: below this a resample's spread or shift is floating-point noise.
 _TOL = 1e-10
@@ -320,7 +323,8 @@ def ratio_ci(a: Sequence[float], b: Sequence[float], resamples: int = 10_000, se
              level: float = 0.95, paired: bool = False) -> Tuple[float, float, float]:
     """mean(A) / mean(B) and its interval: the ratios rho whose contrast mean(A) - rho mean(B) the
     symmetric bootstrap-t interval (paired: on a - rho b) does not exclude, a Fieller-type inversion of the
-    difference's own interval (module doc). NaN without a positive mean(B) or with < MIN_SEEDS per side;
+    difference's own interval (module doc). NaN without a positive mean(B) or with < MIN_SEEDS per side (paired:
+    the ratio with a NaN interval below MIN_PAIRS pairs);
     an end is +-inf where no rho excludes it."""
     from scipy.optimize import brentq
 
@@ -330,6 +334,8 @@ def ratio_ci(a: Sequence[float], b: Sequence[float], resamples: int = 10_000, se
     if paired and len(a) != len(b):
         raise ValueError(f"paired sides need one value per seed on each side (got {len(a)} and {len(b)})")
     rho = float(a.mean() / b.mean())
+    if paired and len(a) < MIN_PAIRS:   # no paired interval below MIN_PAIRS pairs (compare's rule)
+        return rho, math.nan, math.nan
 
     def bound(r: float, end: int) -> float:  # the contrast interval's low (0) or high (1) end at ratio r
         x, y = (a - r * b, np.zeros_like(a)) if paired else (a, r * b)
@@ -546,12 +552,12 @@ def compare(a: Sequence[float], b: Sequence[float], margin: float, resamples: in
     sens = {}
     if paired:
         x = a - b
-        tl, th, _, _ = _welch(x, np.zeros_like(x), level)   # one sample beside zeros: the paired t interval
-        sens = dict(paired_t_low=tl, paired_t_high=th, signflip_p=signflip_p(x))
-        if len(x) < MIN_PAIRS:
+        if len(x) < MIN_PAIRS:   # no paired interval at all, the paired t's included; the exact sign-flip p stays
             return Comparison(len(a), len(b), mean_a, mean_b, diff, math.nan, math.nan, p_imp, margin,
                               INCONCLUSIVE, pairs_to_decide(x, margin), wl, wh,
-                              f"none (fewer than {MIN_PAIRS} pairs)", paired, **sens)
+                              f"none (fewer than {MIN_PAIRS} pairs)", paired, signflip_p=signflip_p(x))
+        tl, th, _, _ = _welch(x, np.zeros_like(x), level)   # one sample beside zeros: the paired t interval
+        sens = dict(paired_t_low=tl, paired_t_high=th, signflip_p=signflip_p(x))
     # paired: the one sample of per-seed differences beside zeros, i.e. the two-sample code with B = 0
     x, y = (a - b, np.zeros_like(a)) if paired else (a, b)
     lo, hi, how = _diff_ci(x, y, resamples, seed, level, BOOT_T)
