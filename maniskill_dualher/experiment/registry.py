@@ -298,11 +298,11 @@ EXPERIMENTS: Dict[str, Experiment] = {e.name: e for e in (
             doc="Algorithm 1: one update per finished episode (the pilot, results/paper_regime)",
             display="Table 3's settings, one update per episode"),
         # the compiled fused update (results/paper_regime/AMENDMENT.md, second section): declared before any run;
-        # ~3.6M updates a run make the update most of a run's time
+        # ~3.5M updates a run (one per env step after the 100k random ones) make the update most of a run's time
         Arm("step", PAPER_REGIME_SETTINGS + ("adapt.sac.update_schedule=step", "adapt.sac.updates_per_step=1",
                                              "adapt.sac.compile=true"),
             prior_method="sac_her_per",
-            doc="one update per env step, compiled (the confirmatory study's second schedule; ~3.6M updates a run)",
+            doc="one update per env step, compiled (the confirmatory study's second schedule; ~3.5M updates a run)",
             display="Table 3's settings, one update per env step"),
         # the count uniform-random actions give under the same episode rules, budget and prior (its R is carried
         # and filled as in the other arms; no update is ever made, so the prior's actor is only evaluated)
