@@ -476,13 +476,18 @@ def replication(scores, c: Claim, resamples: int) -> str:
             f"{row['verdict']}{caveat}")
 
 
+def has_p(row: dict) -> bool:
+    """The claim has a finite p-value: the claims Holm and Benjamini-Hochberg adjust (and the report counts)."""
+    p = row.get("p_value")
+    return isinstance(p, float) and p == p
+
+
 def _adjust(rows: List[dict]) -> None:
     """Holm and Benjamini-Hochberg within each family, and whether each decided verdict survives Holm:
     a direction verdict if its Holm-adjusted p < ALPHA; an equivalence verdict if its own test's p times
     the family's size (Bonferroni, never less strict than Holm) < ALPHA."""
     for family in FAMILIES:
-        fam = [r for r in rows if r["group"] == family and isinstance(r.get("p_value"), float)
-               and r["p_value"] == r["p_value"]]
+        fam = [r for r in rows if r["group"] == family and has_p(r)]
         p = [r["p_value"] for r in fam]
         for r, ph, pb in zip(fam, stats.holm(p), stats.benjamini_hochberg(p)):
             r["p_holm"], r["p_bh"] = float(ph), float(pb)

@@ -96,12 +96,6 @@ def adapt_budgets(curves: Sequence[dict]) -> Dict[tuple, int]:
     return {k: min(v.values()) for k, v in last.items()}
 
 
-def has_p(r: dict) -> bool:
-    """The claim has a finite p-value: the ones Holm and Benjamini-Hochberg adjust (``claims._adjust``)."""
-    p = r.get("p_value")
-    return isinstance(p, float) and p == p
-
-
 FAMILY_TITLES = [f"{t} (`{g}`)" for g, t in claims_mod.FAMILIES.items()]
 
 
@@ -112,12 +106,12 @@ def summary_md(name: str, sweep: Optional[dict], scores, tables, claims, figures
     s = [f"# Results: {name}" + (f" (preset {sweep['preset']})" if sweep.get("preset") else ""), ""]
     s.append(f"{plural(len(runs), 'finished run')} in `{SCORES}`"
              + (f"; {plural(len(unfinished), 'run')} unfinished (not counted)" if unfinished else "") + ".")
+    ran = adapt_budgets(curves)
     if sweep.get("budgets"):
         b = sweep["budgets"]
         s.append(f"The preset's default budgets (env steps"
-                 + ("; an arm's settings may override them: as run on the next line" if adapt_budgets(curves) else "")
+                 + ("; an arm's settings may override them: as run on the next line" if ran else "")
                  + f"): single-task {b['single']}; source stage {b['source']}; adaptation {b['adapt']}.")
-    ran = adapt_budgets(curves)
     if ran:
         by_n: Dict[int, List[str]] = {}
         for (e, a), n in sorted(ran.items()):
@@ -146,8 +140,8 @@ def summary_md(name: str, sweep: Optional[dict], scores, tables, claims, figures
           "without the run folders.", ""]
     decided = [r for r in claims if claims_mod.decided(r)]
     # the claims Holm adjusts: those with a finite p-value (none below MIN_SEEDS per side or MIN_PAIRS pairs)
-    tested = [r for r in claims if has_p(r)]
-    untested = [r for r in claims if "diff" in r and not has_p(r)]
+    tested = [r for r in claims if claims_mod.has_p(r)]
+    untested = [r for r in claims if "diff" in r and not claims_mod.has_p(r)]
     s += ["## Verdicts (`claims.csv`)", "",
           "Each claim is 'A > B' (the paper's direction, or the ablation's question). Each side is one score "
           "per seed; the difference of means A - B gets a 95% interval (" + stats.CI_METHOD
