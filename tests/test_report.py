@@ -173,6 +173,31 @@ def test_the_presets_budgets_are_called_defaults_where_arms_ran_their_own():
     assert alone[3].startswith("The preset's default budgets (env steps): single-task")
 
 
+def test_summary_tables_only_measured_claims_and_names_the_rest():
+    """A folder holds some experiments: summary.md counts and tables the claims it measures, names the others
+    under their family (a family with none measured keeps only that line), and prints budgets per task."""
+    from maniskill_dualher.analysis.report import summary_md
+    tables = {n: [] for n in ("table5_multitask.csv", "table4_sampling_ratio.csv", "ablations.csv",
+                              "single_task.csv")}
+    measured = {"claim": "regime_count_episode", "group": "paper_regime", "statement": "A > B", "paper": "",
+                "n_a": "16", "n_b": "16", "mean_a": 341.9, "mean_b": 371.1, "diff": -29.25,
+                "diff_ci95_low": -79.8, "diff_ci95_high": 21.3, "verdict": "inconclusive", "p_value": 0.23,
+                "p_holm": 0.68, "survives_holm": "", "metric": "successful_train_episodes"}
+    missing = [{"claim": c, "group": g, "statement": "A > B", "paper": "", "verdict": "not measured (runs missing)"}
+               for c, g in (("a", "paper"), ("b", "paper"), ("regime_count_step", "paper_regime"))]
+    budgets = {"single": {"CloseBox-v1": 10000}, "source": {"CloseBox-v1": 6000}, "adapt": {"CloseBox-v1": 12000}}
+    s = summary_md("x", {"budgets": budgets}, [], tables, [measured, *missing], [], [])
+    assert "0 of 1 measured claim decided at 95%, 0 of them after Holm within their family; 3 more are not " \
+           "measured here" in s
+    assert "single-task CloseBox-v1 10,000; source stage CloseBox-v1 6,000; adaptation CloseBox-v1 12,000." in s
+    assert "not measured (runs missing)" not in s                 # no table row for a claim without runs
+    paper = s[s.index("### The paper's claims"):s.index("### The paper's own regime")]
+    assert "| a |" not in paper and "Not measured here (no runs for them in this folder): a, b." in paper
+    regime = s[s.index("### The paper's own regime"):]
+    assert "| regime_count_episode |" in regime
+    assert "Not measured here (no runs for it in this folder): regime_count_step." in regime
+
+
 def test_scratch_control_sits_beside_transfer(folder):
     """The from-scratch control enters Table 5 as its own experiment and decides claim (h)."""
     for seed, final in enumerate([3, 4, 5]):

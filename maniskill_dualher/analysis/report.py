@@ -99,6 +99,13 @@ def adapt_budgets(curves: Sequence[dict]) -> Dict[tuple, int]:
 FAMILY_TITLES = [f"{t} (`{g}`)" for g, t in claims_mod.FAMILIES.items()]
 
 
+def _per_task(budgets) -> str:
+    """{'CloseBox-v1': 6000, ...} as "CloseBox-v1 6,000, ..." (a preset's budget per task)."""
+    if not isinstance(budgets, dict):
+        return str(budgets)
+    return ", ".join(f"{t} {n:,}" if isinstance(n, int) else f"{t} {n}" for t, n in budgets.items())
+
+
 def summary_md(name: str, sweep: Optional[dict], scores, tables, claims, figures: List[str], unfinished: List[str],
                budget_rows: Sequence[dict] = (), regime_rows: Sequence[dict] = (), curves: Sequence[dict] = ()) -> str:
     sweep = sweep or {}
@@ -111,7 +118,8 @@ def summary_md(name: str, sweep: Optional[dict], scores, tables, claims, figures
         b = sweep["budgets"]
         s.append(f"The preset's default budgets (env steps"
                  + ("; an arm's settings may override them: as run on the next line" if ran else "")
-                 + f"): single-task {b['single']}; source stage {b['source']}; adaptation {b['adapt']}.")
+                 + f"): single-task {_per_task(b['single'])}; source stage {_per_task(b['source'])}; "
+                 f"adaptation {_per_task(b['adapt'])}.")
     if ran:
         by_n: Dict[int, List[str]] = {}
         for (e, a), n in sorted(ran.items()):
@@ -139,6 +147,7 @@ def summary_md(name: str, sweep: Optional[dict], scores, tables, claims, figures
           "`curves.csv` (one row per evaluation): `python -m maniskill_dualher.report <this folder>` rebuilds them "
           "without the run folders.", ""]
     decided = [r for r in claims if claims_mod.decided(r)]
+    measured = [r for r in claims if "diff" in r]
     # the claims Holm adjusts: those with a finite p-value (none below MIN_SEEDS per side or MIN_PAIRS pairs)
     tested = [r for r in claims if claims_mod.has_p(r)]
     untested = [r for r in claims if "diff" in r and not claims_mod.has_p(r)]
@@ -166,8 +175,10 @@ def summary_md(name: str, sweep: Optional[dict], scores, tables, claims, figures
           "(Tables 4, 5) the ratio of means A/B has a 95% interval (the ratios the same interval does not "
           "exclude) and `paper_size` says whether an effect of the paper's size is excluded in this setting; "
           "the paper reports one run per side, no spread.", "",
-          " ".join([f"{len(decided)} of {len(claims)} claims decided at 95%, "
-                    f"{sum(r.get('survives_holm') == 'yes' for r in claims)} of them after Holm within their family."]
+          " ".join([f"{len(decided)} of {plural(len(measured), 'measured claim')} decided at 95%, "
+                    f"{sum(r.get('survives_holm') == 'yes' for r in claims)} of them after Holm within their family"
+                    + (f"; {len(claims) - len(measured)} more {'is' if len(claims) - len(measured) == 1 else 'are'} not measured here (no runs for them in this "
+                       "folder; listed below each family's table)" if len(measured) < len(claims) else "") + "."]
                    + ([stats.multiplicity_note(len(tested))] if tested else [])
                    + ([f"{plural(len(untested), 'measured claim')} {'has' if len(untested) == 1 else 'have'} no "
                        f"interval (too few seeds or pairs), hence no p-value, and {'is' if len(untested) == 1 else 'are'}"
@@ -181,8 +192,14 @@ def summary_md(name: str, sweep: Optional[dict], scores, tables, claims, figures
                          ("paper_regime", "The paper's own regime (preregistered)"),
                          ("relatives", "The dual buffer's relatives (defined before their runs)")):
         rows = [r for r in claims if r["group"] == group]
-        if rows:
-            s += [f"### {title}", ""] + claims_md(rows) + [""]
+        shown = [r for r in rows if "diff" in r]    # a folder holds some experiments: the rest only by name
+        absent = [r["claim"] for r in rows if "diff" not in r]
+        if shown:
+            s += [f"### {title}", ""] + claims_md(shown) + [""]
+        if absent:
+            s += ([] if shown else [f"### {title}", ""]) + [
+                f"Not measured here (no runs for {'it' if len(absent) == 1 else 'them'} in this folder): "
+                + ", ".join(absent) + ".", ""]
     post = [r for r in claims if r.get("post_hoc")]
     if post:
         s += ["Defined after (some of) their data were seen (marked ‡ in the README; `post_hoc` in `claims.csv` "
