@@ -148,6 +148,7 @@ def summary_md(name: str, sweep: Optional[dict], scores, tables, claims, figures
           "without the run folders.", ""]
     decided = [r for r in claims if claims_mod.decided(r)]
     measured = [r for r in claims if "diff" in r]
+    missing = len(claims) - len(measured)   # claims whose runs this folder does not hold
     # the claims Holm adjusts: those with a finite p-value (none below MIN_SEEDS per side or MIN_PAIRS pairs)
     tested = [r for r in claims if claims_mod.has_p(r)]
     untested = [r for r in claims if "diff" in r and not claims_mod.has_p(r)]
@@ -177,8 +178,9 @@ def summary_md(name: str, sweep: Optional[dict], scores, tables, claims, figures
           "the paper reports one run per side, no spread.", "",
           " ".join([f"{len(decided)} of {plural(len(measured), 'measured claim')} decided at 95%, "
                     f"{sum(r.get('survives_holm') == 'yes' for r in claims)} of them after Holm within their family"
-                    + (f"; {len(claims) - len(measured)} more {'is' if len(claims) - len(measured) == 1 else 'are'} not measured here (no runs for them in this "
-                       "folder; listed below each family's table)" if len(measured) < len(claims) else "") + "."]
+                    + (f"; {missing} more {'is' if missing == 1 else 'are'} not measured here (no runs for "
+                       f"{'it' if missing == 1 else 'them'} in this folder; listed below each family's table)"
+                       if missing else "") + "."]
                    + ([stats.multiplicity_note(len(tested))] if tested else [])
                    + ([f"{plural(len(untested), 'measured claim')} {'has' if len(untested) == 1 else 'have'} no "
                        f"interval (too few seeds or pairs), hence no p-value, and {'is' if len(untested) == 1 else 'are'}"
