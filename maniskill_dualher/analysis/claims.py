@@ -468,12 +468,17 @@ def replication(scores, c: Claim, resamples: int) -> str:
     caveat = f"; {c.replication_caveat}" if c.replication_caveat else ""
     keep = [r for r in scores if int(r["seed"]) >= c.replicate_from]
     row = _claim_row(keep, dataclasses.replace(c, post_hoc=""), resamples)
-    if "diff" not in row:
+    if not measured(row):
         return f"seeds >= {c.replicate_from}: not measured{caveat}"
     seeds = sorted(set(_side_rows(keep, c.a, c.metric)) | set(_side_rows(keep, c.b, c.metric)))
     return (f"seeds {seeds[0]}-{seeds[-1]} (n = {row['n_a']}, {row['n_b']}{', paired' if row['paired'] == 'yes' else ''}): "
             f"{float(row['diff']):+.3g} [{float(row['diff_ci95_low']):.3g}, {float(row['diff_ci95_high']):.3g}] "
             f"{row['verdict']}{caveat}")
+
+
+def measured(row: dict) -> bool:
+    """Both sides of the claim have runs here: the row has a difference (else its verdict is "not measured")."""
+    return "diff" in row
 
 
 def has_p(row: dict) -> bool:
@@ -508,7 +513,7 @@ def claim_rows(scores: Sequence[Dict[str, str]], resamples: int = 10_000,
 
 
 def decided(row: dict) -> bool:
-    return "diff" in row and not row["verdict"].startswith(("inconclusive", "not measured", stats.UNINFORMATIVE))
+    return measured(row) and not row["verdict"].startswith(("inconclusive", "not measured", stats.UNINFORMATIVE))
 
 
 def explains(key: str) -> str:

@@ -60,10 +60,7 @@ def _ci(r: dict) -> str:
 def claims_md(rows: List[dict]) -> List[str]:
     lines = ["| | claim (A > B) | paper | A vs B (mean over seeds, n) | A - B [95% CI] | P(A > B) | verdict | "
              "p, Holm (survives) |", "|---|---|---|---|---|---|---|---|"]
-    for r in rows:
-        if "diff" not in r:
-            lines.append(f"| {r['claim']} | {r['statement']} | {r['paper']} | | | | {r['verdict']} | |")
-            continue
+    for r in rows:   # measured claims only: summary_md names the others under their family
         holm = f"{_g(r['p_value'])}, {_g(r['p_holm'])}" if "p_holm" in r else ""
         if r.get("survives_holm"):
             holm += f" ({r['survives_holm']})"
@@ -147,11 +144,11 @@ def summary_md(name: str, sweep: Optional[dict], scores, tables, claims, figures
           "`curves.csv` (one row per evaluation): `python -m maniskill_dualher.report <this folder>` rebuilds them "
           "without the run folders.", ""]
     decided = [r for r in claims if claims_mod.decided(r)]
-    measured = [r for r in claims if "diff" in r]
+    measured = [r for r in claims if claims_mod.measured(r)]
     missing = len(claims) - len(measured)   # claims whose runs this folder does not hold
     # the claims Holm adjusts: those with a finite p-value (none below MIN_SEEDS per side or MIN_PAIRS pairs)
     tested = [r for r in claims if claims_mod.has_p(r)]
-    untested = [r for r in claims if "diff" in r and not claims_mod.has_p(r)]
+    untested = [r for r in measured if not claims_mod.has_p(r)]
     s += ["## Verdicts (`claims.csv`)", "",
           "Each claim is 'A > B' (the paper's direction, or the ablation's question). Each side is one score "
           "per seed; the difference of means A - B gets a 95% interval (" + stats.CI_METHOD
@@ -194,8 +191,8 @@ def summary_md(name: str, sweep: Optional[dict], scores, tables, claims, figures
                          ("paper_regime", "The paper's own regime (preregistered)"),
                          ("relatives", "The dual buffer's relatives (defined before their runs)")):
         rows = [r for r in claims if r["group"] == group]
-        shown = [r for r in rows if "diff" in r]    # a folder holds some experiments: the rest only by name
-        absent = [r["claim"] for r in rows if "diff" not in r]
+        shown = [r for r in rows if claims_mod.measured(r)]   # a folder holds some experiments: the rest by name
+        absent = [r["claim"] for r in rows if not claims_mod.measured(r)]
         if shown:
             s += [f"### {title}", ""] + claims_md(shown) + [""]
         if absent:
@@ -209,7 +206,7 @@ def summary_md(name: str, sweep: Optional[dict], scores, tables, claims, figures
               "what keeps it from being independent, where something does): "
               + "; ".join(f"{r['claim']} ({r['post_hoc']}): {r['replication']}" for r in post) + ".", ""]
     s += regime_mod.summary_lines(regime_rows) + regime_mod.sequential_lines(curves)
-    why = [r for r in claims if r["group"] != "paper" and "diff" in r and claims_mod.explains(r["claim"])]
+    why = [r for r in measured if r["group"] != "paper" and claims_mod.explains(r["claim"])]
     if why:
         s += ["### Why the dual buffer's count differs: one sentence per ablation claim", ""]
         s += [f"- {claims_mod.explains(r['claim'])} {_g(r['diff'])} {_ci(r)} "
