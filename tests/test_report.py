@@ -882,6 +882,44 @@ def test_report_of_one_run_draws_its_curves_and_says_its_numbers(tmp_path, capsy
     assert "1 finished run of no sweep" in err and f"report {run}" in err and "runs)" not in err
 
 
+def test_report_of_one_run_says_where_its_critic_went_beside_what_its_rewards_allow(tmp_path, capsys):
+    """A critic whose mean Q leaves 1/(1 - gamma) (rewards in {0, 1}) has diverged (the paper regime's `step`
+    runs): `report RUN` says where, and how many successes came by then and after; the Q panel draws the bound."""
+    from maniskill_dualher.analysis import run_curves
+    run = tmp_path / "run"
+    _train_folder(run)
+    assert report.main([str(run)]) == 0
+    out = capsys.readouterr().out
+    assert "critic, mean Q on its R batches (between evaluations): peak 0.7 at env step 300, last 0.7" in out
+    assert "bound a return by 1/(1 - gamma) = 100: |Q| never above it" in out
+    diag = run / "diagnostics.csv"
+    diag.write_text(diag.read_text().replace("\n200,0.004,4,0.1,0.5,", "\n200,0.004,4,0.1,250,"))
+    assert report.main([str(run)]) == 0
+    out = capsys.readouterr().out
+    assert ("peak 250 at env step 200, last 0.7; rewards in {0, 1} bound a return by 1/(1 - gamma) = 100: |Q| above "
+            "it at 1 of 3 points, first at env step 200, last at 200 (successful training episodes by the first: 3; "
+            "after the last: 6)") in out
+    cfg = json.loads((run / "config.json").read_text())
+    assert run_curves.return_bound({**cfg, "reward_mode": "dense"}) is None
+    assert run_curves.return_bound({**cfg, "sac": {**cfg["sac"], "gamma": 0.95}}) == pytest.approx(20)
+    # a diverged critic and the bound on one symlog axis: decades from the bound out, none inside
+    assert run_curves._symlog_ticks([1.0, 7e4, -50.0], 1 / (1 - 0.99)) == [0.0, 100.0, 1e3, 1e4, 1e5]
+    assert run_curves._symlog_ticks([1.0, 7e4, -500.0], 100.0) == [-1e3, -100.0, 0.0, 100.0, 1e3, 1e4, 1e5]
+
+
+def test_committed_critic_traces_say_what_their_report_lines_say(monkeypatch):
+    """results/paper_regime_critics: report_lines.txt is what `report RUN` says of each committed run folder
+    today, so the HOW_MADE's table is checkable from the raw files."""
+    from maniskill_dualher.analysis import run_curves
+    root = Path(__file__).resolve().parents[1] / "results" / "paper_regime_critics"
+    monkeypatch.chdir(root.parents[1])   # the lines name each folder as the command was given it, from the root
+    folders = sorted((root / "study").iterdir()) + sorted(p for p in (root / "diagnostic").iterdir() if p.is_dir())
+    assert len(folders) == 8
+    want = "\n\n".join("\n".join(run_curves.summary(f.relative_to(root.parents[1]))) for f in folders) + "\n\n"
+    assert (root / "report_lines.txt").read_text() == want
+    assert not list(root.rglob("*.png"))   # drawn by the command, not committed
+
+
 def test_report_of_a_run_without_an_evaluation_says_so(tmp_path, capsys):
     run = tmp_path / "run"
     run.mkdir()

@@ -12,13 +12,14 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import List, Sequence, Tuple
+from typing import List, Optional, Sequence, Tuple
 
 from .. import rundir
 from ..config import ConfigError
 from ..fileio import plural
 
 FIGURE = "curves.png"
+Q_PANEL = "Mean Q on the batches"   # drawn beside the most a return reaches (``return_bound``)
 SOURCES = {"R": "R (all replay)", "E": "E (success buffer)"}
 # (title, y label, [(column, label)] or a diagnostics stat, y range or None, log y)
 EVAL_PANELS = (
@@ -32,7 +33,7 @@ DIAG_PANELS = (  # diagnostics.csv's stat -> (title, y label)
     ("qf_loss", "Critic loss", "loss (mean between evaluations)"),
     ("alpha", "Alpha (entropy coefficient)", "alpha"),
     ("entropy", "Policy entropy", "entropy (-log pi, nats)"),
-    ("qf_values", "Mean Q on the batches", "Q"),
+    ("qf_values", "Mean Q on the batches", "Q"),   # Q_PANEL
     ("td_abs", "|TD error| on the batches", "|TD| (sum over the two critics)"),
 )
 
@@ -101,6 +102,20 @@ def _title(cfg: dict, done: bool, steps: float) -> str:
             f"{int(cfg.get('eval_every', 0) or 0):,} env steps")
 
 
+def _ticker():
+    import matplotlib.ticker
+    return matplotlib.ticker
+
+
+def _symlog_ticks(ys: Sequence[float], bound: float) -> List[float]:
+    """0 and the decades from ``bound`` out to the data on each side (none inside the linear part)."""
+    k0 = math.floor(math.log10(bound) + 1e-9)   # 1/(1 - 0.99) is 99.99999999999991
+    up = [10.0 ** k for k in range(k0, math.ceil(math.log10(max(max(ys), bound))) + 1)]
+    low = min(ys)
+    down = [-(10.0 ** k) for k in range(k0, math.ceil(math.log10(-low)) + 1)] if low < -bound else []
+    return sorted(down) + [0.0] + up
+
+
 def draw(folder: Path, path: Path) -> int:
     """``path`` (a PNG) from run folder ``folder``'s metrics.csv and diagnostics.csv; -> the panels drawn."""
     from .plots import _kilo, _plt, save_figure
@@ -125,7 +140,16 @@ def draw(folder: Path, path: Path) -> int:
             ax.set_ylim(p["ylim"][0] - 0.03, p["ylim"][1] + 0.03)
         if p["log"]:
             ax.set_yscale("log")
-        if len(p["lines"]) > 1:
+        bound = return_bound(cfg) if p["title"] == Q_PANEL else None
+        if bound is not None:
+            ax.axhline(bound, color="0.35", ls=":", lw=1.2, label=f"1/(1 - gamma) = {bound:.4g}")
+            if max(abs(y) for ln in p["lines"] for y in ln[2]) > 10 * bound:
+                ax.set_yscale("symlog", linthresh=bound)   # a diverged critic and the bound on one axis
+                ys = [y for ln in p["lines"] for y in ln[2]]
+                ax.set_yticks(_symlog_ticks(ys, bound))
+                ax.yaxis.set_minor_locator(_ticker().NullLocator())
+                ax.set_ylim(bottom=min(min(ys), 0.0) - 0.2 * bound)
+        if len(p["lines"]) > 1 or bound is not None:
             ax.legend(frameon=False, fontsize=7)
     for ax in axes.ravel()[len(ps):]:
         ax.remove()  # no empty panel
@@ -157,7 +181,44 @@ def summary(folder: Path) -> List[str]:
            f"{int(_value(last, 'train_episodes')):,}"
            + (f"; {plural(int(_value(last, 'updates')), 'gradient update')}" if _value(last, "updates") == _value(
                last, "updates") else "")]
-    return out
+    diag = rundir.read_metrics(folder, rundir.DIAGNOSTICS) if (folder / rundir.DIAGNOSTICS).is_file() else []
+    return out + critic_lines(cfg, rows, diag)
+
+
+def return_bound(cfg: dict) -> Optional[float]:
+    """The most a discounted return reaches where every reward is 0 or 1 (``reward_mode`` sparse): 1/(1 - gamma);
+    None for other rewards. A soft value adds alpha x entropy per step (at most alpha d ln 2 for d action
+    dimensions in [-1, 1]: 0.028 for the Panda's 8 at alpha 0.005), small beside it."""
+    gamma = (cfg.get("sac") or {}).get("gamma")
+    if cfg.get("reward_mode") != "sparse" or not isinstance(gamma, (int, float)) or not 0 <= gamma < 1:
+        return None
+    return 1.0 / (1.0 - gamma)
+
+
+def critic_lines(cfg: dict, metrics: Sequence[dict], diag: Sequence[dict]) -> List[str]:
+    """Where the critic's mean Q on its R batches went, beside what the rewards allow: a critic far above
+    1/(1 - gamma) has diverged, whatever the successes say (results/paper_regime_confirm, the `step` arm)."""
+    xs, ys = _series(diag, "R_qf_values")
+    if not xs:
+        return []
+    i = max(range(len(ys)), key=ys.__getitem__)
+    line = (f"critic, mean Q on its R batches (between evaluations): peak {ys[i]:.4g} at env step {int(xs[i]):,}, "
+            f"last {ys[-1]:.4g}")
+    bound = return_bound(cfg)
+    if bound is not None:
+        over = [x for x, y in zip(xs, ys) if abs(y) > bound]
+        line += f"; rewards in {{0, 1}} bound a return by 1/(1 - gamma) = {bound:.4g}: "
+        if not over:
+            line += "|Q| never above it"
+        else:
+            def successes_at(step: float) -> int:
+                below = [_value(r, "train_successes") for r in metrics if _value(r, "env_steps") <= step]
+                return int(below[-1]) if below and below[-1] == below[-1] else 0
+            total = successes_at(math.inf)
+            line += (f"|Q| above it at {len(over)} of {len(xs)} points, first at env step {int(over[0]):,}, last at "
+                     f"{int(over[-1]):,} (successful training episodes by the first: "
+                     f"{successes_at(over[0]):,}; after the last: {total - successes_at(over[-1]):,})")
+    return [line]
 
 
 def report_run(folder: Path) -> Tuple[Path, List[str]]:
