@@ -33,7 +33,7 @@ DIAG_PANELS = (  # diagnostics.csv's stat -> (title, y label)
     ("qf_loss", "Critic loss", "loss (mean between evaluations)"),
     ("alpha", "Alpha (entropy coefficient)", "alpha"),
     ("entropy", "Policy entropy", "entropy (-log pi, nats)"),
-    ("qf_values", "Mean Q on the batches", "Q"),   # Q_PANEL
+    ("qf_values", Q_PANEL, "Q"),
     ("td_abs", "|TD error| on the batches", "|TD| (sum over the two critics)"),
 )
 
@@ -143,9 +143,9 @@ def draw(folder: Path, path: Path) -> int:
         bound = return_bound(cfg) if p["title"] == Q_PANEL else None
         if bound is not None:
             ax.axhline(bound, color="0.35", ls=":", lw=1.2, label=f"1/(1 - gamma) = {bound:.4g}")
-            if max(abs(y) for ln in p["lines"] for y in ln[2]) > 10 * bound:
+            ys = [y for ln in p["lines"] for y in ln[2]]
+            if max(abs(y) for y in ys) > 10 * bound:
                 ax.set_yscale("symlog", linthresh=bound)   # a diverged critic and the bound on one axis
-                ys = [y for ln in p["lines"] for y in ln[2]]
                 ax.set_yticks(_symlog_ticks(ys, bound))
                 ax.yaxis.set_minor_locator(_ticker().NullLocator())
                 ax.set_ylim(bottom=min(min(ys), 0.0) - 0.2 * bound)
@@ -197,7 +197,7 @@ def return_bound(cfg: dict) -> Optional[float]:
 
 def critic_lines(cfg: dict, metrics: Sequence[dict], diag: Sequence[dict]) -> List[str]:
     """Where the critic's mean Q on its R batches went, beside what the rewards allow: a critic far above
-    1/(1 - gamma) has diverged, whatever the successes say (results/paper_regime_confirm, the `step` arm)."""
+    1/(1 - gamma) has diverged, whatever the successes say (results/paper_regime_critics: the paper regime's `step` runs)."""
     xs, ys = _series(diag, "R_qf_values")
     if not xs:
         return []
