@@ -917,7 +917,6 @@ def test_committed_critic_traces_say_what_their_report_lines_say(monkeypatch):
     assert len(folders) == 8
     want = "\n\n".join("\n".join(run_curves.summary(f.relative_to(root.parents[1]))) for f in folders) + "\n\n"
     assert (root / "report_lines.txt").read_text() == want
-    assert not list(root.rglob("*.png"))   # drawn by the command, not committed
 
 
 def test_report_of_a_run_without_an_evaluation_says_so(tmp_path, capsys):
