@@ -52,9 +52,11 @@ def atomic_write_with(path: PathLike, write: Callable[[str], None]) -> None:
     _atomic(path, write)
 
 
-def plural(n: int, word: str, many: Optional[str] = None) -> str:
-    """``n`` and its noun, singular for one: plural(1, "episode") -> "1 episode", plural(3, "run") -> "3 runs"."""
-    return f"{n} {word if n == 1 else (many or word + 's')}"
+def plural(n: int, word: str, many: Optional[str] = None, thousands: bool = False) -> str:
+    """``n`` and its noun, singular for one: plural(1, "episode") -> "1 episode", plural(3, "run") -> "3 runs";
+    ``thousands``: 3,500,001 (the tables keep their plain numbers)."""
+    number = f"{n:,}" if thousands else f"{n}"
+    return f"{number} {word if n == 1 else (many or word + 's')}"
 
 
 def steps_text(v: float) -> str:

@@ -934,3 +934,5 @@ def test_step_ticks_and_counts_read_in_units():
     assert [steps_text(v) for v in (0, 500, 4000, 12_500, 1e6, 3_000_000, 3_600_000)] == \
         ["0", "500", "4k", "12.5k", "1M", "3M", "3.6M"]
     assert (plural(1, "episode"), plural(2, "episode"), plural(0, "worker")) == ("1 episode", "2 episodes", "0 workers")
+    assert (plural(3_500_001, "update", thousands=True), plural(3_500_001, "update")) == ("3,500,001 updates",
+                                                                                         "3500001 updates")

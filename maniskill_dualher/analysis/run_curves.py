@@ -179,7 +179,7 @@ def summary(folder: Path) -> List[str]:
            f"{int(_value(best, 'env_steps')):,}",
            f"successful training episodes: {int(_value(last, 'train_successes')):,} of "
            f"{int(_value(last, 'train_episodes')):,}"
-           + (f"; {plural(int(_value(last, 'updates')), 'gradient update')}" if _value(last, "updates") == _value(
+           + (f"; {plural(int(_value(last, 'updates')), 'gradient update', thousands=True)}" if _value(last, "updates") == _value(
                last, "updates") else "")]
     diag = rundir.read_metrics(folder, rundir.DIAGNOSTICS) if (folder / rundir.DIAGNOSTICS).is_file() else []
     return out + critic_lines(cfg, rows, diag)
