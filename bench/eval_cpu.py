@@ -1,6 +1,6 @@
 """Evaluation's Python per episode and replay sampling per batch: this tree (A) against a frozen clone (B).
 
-    python bench/eval_cpu.py --base /work/frozen [--tasks ID,ID,...]   # default: config.TASKS
+    python bench/eval_cpu.py --base <clone> [--tasks ID,ID,...]   # default: config.TASKS
         [--members 3] [--evals 3] [--batches 2000] [--fill 20000] [--order ABBA] [--json FILE]
 
 Each measurement runs in a fresh process with ``PYTHONPATH`` set to its side's tree, the sides interleaved in

@@ -1,7 +1,7 @@
 """Resident memory of one training run: its peak before the final checkpoint, inside it, and overall.
 
     python bench/run_memory.py                                    # this tree: a 40k-step paper-preset run
-    python bench/run_memory.py --tree /work/frozen39 --no-json    # another tree (its own code, a clone)
+    python bench/run_memory.py --tree <clone> --no-json    # another tree (its own code, a clone)
     python bench/run_memory.py --steps 40000 --task CloseMicrowave-v1 --method sac_her_per
 
 The run is ``python -m maniskill_dualher.train --preset paper --task TASK --method METHOD --total-steps N
