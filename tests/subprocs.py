@@ -19,3 +19,11 @@ def sweep_env(hold=None, pattern: str = "checkpoint:*") -> dict:
     if hold is not None:
         env.update(faults.hold_env(pattern, hold))
     return env
+
+
+def alive(pid: int) -> bool:
+    """A process that runs (a zombie waiting for its reaper does not)."""
+    try:
+        return (Path("/proc") / str(pid) / "stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except (OSError, IndexError):
+        return False

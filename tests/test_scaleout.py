@@ -20,7 +20,7 @@ from maniskill_dualher.experiment import backends, sweep
 from maniskill_dualher.sweep import main as run_sweep, train_runs as entry_train_runs  # noqa: F401
 from maniskill_dualher.experiment.grid import Node
 from maniskill_dualher.experiment.lock import LOCK_FILE, FolderLock
-from subprocs import sweep_env
+from subprocs import alive, sweep_env
 
 REPO = Path(__file__).resolve().parents[1]
 TABLES = ["claims.csv", "table5_multitask.csv", "scores.csv"]
@@ -59,14 +59,6 @@ def _stage_in_flight(out: Path, min_stage: int = 1):
 
 def _starts(run_dir: Path) -> int:
     return len(json.loads((run_dir / rundir.PROVENANCE).read_text())["starts"])
-
-
-def _alive(pid: int) -> bool:
-    """A process that runs (a zombie waiting for its reaper does not)."""
-    try:
-        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
-    except (OSError, IndexError):
-        return False
 
 
 def _kill_group(p: subprocess.Popen) -> None:
@@ -188,9 +180,9 @@ def test_ray_cluster_node_removed_midrun_sweep_finishes_same_tables(reference, t
         except ProcessLookupError:
             pass
         gone_by = time.time() + 60
-        while _alive(pid) and time.time() < gone_by:
+        while alive(pid) and time.time() < gone_by:
             time.sleep(0.05)
-        assert not _alive(pid), f"the removed node's worker {pid} still runs"
+        assert not alive(pid), f"the removed node's worker {pid} still runs"
         hold.unlink()
         cluster.add_node(num_cpus=1, object_store_memory=80 * 2**20)
         p.wait(timeout=300)

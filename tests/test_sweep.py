@@ -26,7 +26,7 @@ from maniskill_dualher.sweep import main as run_sweep, train_runs as entry_train
 from maniskill_dualher.experiment.backends import run_grid
 from maniskill_dualher.experiment.grid import build_grid, seed_span
 from maniskill_dualher.train import train_chain
-from subprocs import sweep_env
+from subprocs import alive, sweep_env
 
 REPO = Path(__file__).resolve().parents[1]
 TABLES = ["table4_sampling_ratio.csv", "table5_multitask.csv", "single_task.csv", "ablations.csv"]
@@ -204,13 +204,6 @@ def _children(pid: int) -> list:
     return kids
 
 
-def _alive(pid: int) -> bool:
-    try:
-        return (Path("/proc") / str(pid) / "stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
-    except OSError:
-        return False
-
-
 # a sub-grid of smoke (same budgets, so the same run folders): 2 single-task runs + a 3-stage chain
 SUBGRID = ["--preset", "smoke", "--experiments", "single,transfer", "--tasks", "CloseBox-v1",
            "--methods", "sac,dual_buffer", "--seeds", "1"]
@@ -245,9 +238,9 @@ def test_sigkill_midway_then_resume_gives_identical_tables(smoke_local, tmp_path
         interrupted = [c.parent for c in out.glob("runs/**/checkpoint.pt") if not rundir.is_done(c.parent)]
         assert interrupted, "no run was mid-way when the sweep was killed"
         t_end = time.time() + 15
-        while any(_alive(w) for w in workers) and time.time() < t_end:
+        while any(alive(w) for w in workers) and time.time() < t_end:
             time.sleep(0.1)
-        assert not [w for w in workers if _alive(w)], "pool workers outlived the killed sweep"
+        assert not [w for w in workers if alive(w)], "pool workers outlived the killed sweep"
         hold.unlink()
     finally:
         try:

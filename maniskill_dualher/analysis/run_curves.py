@@ -102,11 +102,6 @@ def _title(cfg: dict, done: bool, steps: float) -> str:
             f"{int(cfg.get('eval_every', 0) or 0):,} env steps")
 
 
-def _ticker():
-    import matplotlib.ticker
-    return matplotlib.ticker
-
-
 def _symlog_ticks(ys: Sequence[float], bound: float) -> List[float]:
     """0 and the decades from ``bound`` out to the data on each side (none inside the linear part)."""
     k0 = math.floor(math.log10(bound) + 1e-9)   # 1/(1 - 0.99) is 99.99999999999991
@@ -118,6 +113,7 @@ def _symlog_ticks(ys: Sequence[float], bound: float) -> List[float]:
 
 def draw(folder: Path, path: Path) -> int:
     """``path`` (a PNG) from run folder ``folder``'s metrics.csv and diagnostics.csv; -> the panels drawn."""
+    from matplotlib.ticker import NullLocator
     from .plots import _kilo, _plt, save_figure
     folder = Path(folder)
     cfg = rundir.read_json(folder / rundir.CONFIG) or {}
@@ -147,7 +143,7 @@ def draw(folder: Path, path: Path) -> int:
             if max(abs(y) for y in ys) > 10 * bound:
                 ax.set_yscale("symlog", linthresh=bound)   # a diverged critic and the bound on one axis
                 ax.set_yticks(_symlog_ticks(ys, bound))
-                ax.yaxis.set_minor_locator(_ticker().NullLocator())
+                ax.yaxis.set_minor_locator(NullLocator())
                 ax.set_ylim(bottom=min(min(ys), 0.0) - 0.2 * bound)
         if len(p["lines"]) > 1 or bound is not None:
             ax.legend(frameon=False, fontsize=7)
