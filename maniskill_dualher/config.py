@@ -62,7 +62,7 @@ FP32_LEVEL_PRECISIONS = ("highest", "high", "medium")
 
 
 # (section or "", key, default) of settings added after run folders were first named (RunConfig.to_dict)
-ADDED_LATER = (("replay", "e_batches", "full"),)
+ADDED_LATER = (("replay", "e_batches", "full"), ("replay", "carry_rows", True))
 E_BATCHES = ("full", "critic")
 
 
@@ -141,6 +141,10 @@ class ReplayConfig:
     # dual buffer, transfer: keep E's rows from the source stages when a stage starts from another run's replay
     # (off: E starts empty, so it holds only this task's successes; R is carried either way)
     carry_success_buffer: bool = True
+    # transfer: start from the previous stage's replay rows (R, and E) where the chain carries replay (a sweep's
+    # default); off: from its networks only, every buffer empty (results/paper_regime_critics: the carried rows
+    # and a critic that leaves its bound)
+    carry_rows: bool = True
     # dual buffer, "choose" mode: what a whole batch from E trains. "full" (Algorithm 1): critics, actor and
     # alpha; "critic": the critics (and V) only, no actor or alpha step (the mechanism ablation, issue 30)
     e_batches: str = "full"

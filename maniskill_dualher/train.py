@@ -357,6 +357,9 @@ class Trainer:
         from .methods import make_method  # late: methods import replay pieces
 
         self.cfg = cfg.validate()
+        if carry_replay and not cfg.replay.carry_rows:
+            raise ConfigError("--carry-replay asks for the prior's replay rows, but this config's replay.carry_rows "
+                              "is false (it starts from the prior's networks only): drop one of the two")
         self.folder = RunFolder(out_dir)
         self.out = self.folder.path
         self.show_progress = show_progress

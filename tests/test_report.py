@@ -368,6 +368,18 @@ def test_reference_folder_is_rebuilt_byte_identically_from_its_csvs(tmp_path):
     assert sorted(p.name for p in copy.rglob("*")) == sorted(p.name for p in ref.rglob("*"))
 
 
+def test_summary_names_every_claim_of_every_family():
+    """summary.md lists each claim of claims.csv, measured (its table) or not (its family's "not measured" line):
+    a family added to claims.FAMILIES gets its section without a change to the report."""
+    ref = Path(__file__).resolve().parents[1] / "results" / "reference"
+    text = (ref / "summary.md").read_text()
+    with open(ref / "claims.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert {r["group"] for r in rows} == set(claims_mod.FAMILIES)
+    named = ["| {} |", " {},", " {}."]   # a table's row, or in a "not measured" list
+    assert [r["claim"] for r in rows if not any(n.format(r["claim"]) in text for n in named)] == []
+
+
 def test_plots_are_written(folder):
     written = report.build_report(folder)
     for name in ("fig4_single_task.png", "fig5_multitask.png", "fig7_aggregate.png"):

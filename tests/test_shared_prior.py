@@ -108,6 +108,42 @@ def test_grid_shares_the_prior_stages_with_sac_her_per_transfer(tmp_path):
     assert len(nodes) == 2 * 3 + 1  # two chains of three, plus the dual buffer's shared-prior adaptation
 
 
+def test_an_arm_without_the_carried_rows_adapts_the_very_prior_a_carrying_arm_adapts(tmp_path):
+    """paper_regime:step_empty (Amendment 3) is `step` with adapt.replay.carry_rows=false: one prior folder for
+    both, its own adaptation folders, whose jobs load the prior's networks and none of its rows (the prior still
+    keeps them for `step`), and whose memory plan reads no carried replay."""
+    from maniskill_dualher.analysis import hyperparameters
+    from maniskill_dualher.experiment import cost
+    d = _definition(tmp_path, "paper_regime:step+step_empty")
+    nodes = {n.rel: n for n in grid.build_grid(d)}
+    adapt = {(c["arm"], c["method"]): n for n in nodes.values() for c in n.cells if c["role"] == "adapt"}
+    assert set(adapt) == {(a, m) for a in ("step", "step_empty") for m in ("dual_buffer", "sac_her_per")}
+    for m in ("dual_buffer", "sac_her_per"):
+        empty, carried = adapt["step_empty", m], adapt["step", m]
+        assert empty.parent == carried.parent and empty.rel != carried.rel
+        assert not empty.cfg.replay.carry_rows and carried.cfg.replay.carry_rows
+        assert {c["arm"] for c in nodes[empty.parent].cells} == {"step", "step_empty"}
+        job, prior_job = grid.job_for(empty.payload(tmp_path), check_parent=False), \
+            grid.job_for(nodes[empty.parent].payload(tmp_path), check_parent=False)
+        assert job["init_from"] == str(tmp_path / empty.parent) and not job["carry_replay"]
+        assert grid.job_for(carried.payload(tmp_path), check_parent=False)["carry_replay"]
+        assert prior_job["keep_replay"] and prior_job["carry_replay"]   # CloseBox still takes ReachTarget's rows
+        assert json.loads((tmp_path / empty.rel / "stage.json").read_text())["carry_replay"] is False
+        assert cost.node_memory(empty).loaded_bytes < cost.node_memory(carried).loaded_bytes
+    row = dict((name, get) for name, _, get in hyperparameters._table())["replay at the start"]
+    assert row(adapt["step_empty", "sac_her_per"].cfg, 2) == "empty"
+    assert row(adapt["step", "sac_her_per"].cfg, 2) == "the previous stage's, carried"
+
+
+def test_a_run_refuses_carry_replay_when_its_config_takes_no_rows(tmp_path):
+    from maniskill_dualher.train import Trainer
+    cfg = RunConfig(env_id="CloseMicrowave-v1", method="sac_her_per", total_steps=100)
+    cfg.replay.carry_rows = False
+    with pytest.raises(ConfigError, match="replay.carry_rows is false"):
+        Trainer(cfg, tmp_path / "dst", init_from=tmp_path / "src", carry_replay=True, show_progress=False)
+    assert not (tmp_path / "dst").exists()
+
+
 def test_shared_prior_sweep_end_to_end(tmp_path):
     """Smoke budgets: SAC+HER+PER's two source stages, then both adaptations from them; the claims see both."""
     import csv

@@ -21,7 +21,7 @@ from maniskill_dualher import rundir
 from maniskill_dualher.methods import METHOD_SPECS
 from maniskill_dualher.config import ReplayConfig, RunConfig, SACConfig
 from maniskill_dualher.experiment.registry import PAPER_CHAIN, PAPER_TARGET, chain_name
-from maniskill_dualher.experiment import protocol, sweep
+from maniskill_dualher.experiment import overrides, protocol, sweep
 from maniskill_dualher.sweep import main as run_sweep, train_runs as entry_train_runs  # noqa: F401
 from maniskill_dualher.experiment.backends import run_grid
 from maniskill_dualher.experiment.grid import build_grid, seed_span
@@ -409,6 +409,12 @@ def test_run_transfer_chains_networks_and_replay(tmp_path):
     from maniskill_dualher.train import run_training
     fresh = run_training(stages[1], tmp_path / "fresh", init_from=d0, carry_replay=False, show_progress=False)
     assert rows[1]["replay_size"] > fresh["replay_size"] > 0
+    # a chain whose last stage takes none of the rows (replay.carry_rows false): the same prior folder, the buffer
+    # a fresh start's
+    empty = [stages[0], overrides.apply(stages[1], overrides.parse_all(("replay.carry_rows=false",))).validate()]
+    rows_empty = train_chain(empty, tmp_path / "chain", carry_replay=True, show_progress=False)
+    assert protocol.transfer_chain_dirs(tmp_path / "chain", empty, True)[0] == d0
+    assert rows_empty[0] == rows[0] and rows_empty[1]["replay_size"] == fresh["replay_size"]
     # finished chain: a second call trains nothing and returns the same rows
     assert train_chain(stages, tmp_path / "chain", show_progress=False) == rows
 

@@ -25,6 +25,8 @@ COUNT_MARGIN = 0.1     # counts and env steps: 10% of the larger side's mean
 FAMILIES = {"paper": "the paper's claims (a)-(h')", "ablation": "the ablations",   # Holm/BH families
             "updates": "total updates vs R's share (defined before its runs)",
             "paper_regime": "the paper's own regime (preregistered: results/paper_regime/PREREGISTRATION.md)",
+            "paper_regime_empty": "the paper's regime with buffers starting empty (defined before its runs: "
+                                  "results/paper_regime/AMENDMENT.md, Amendment 3)",
             "relatives": "the dual buffer's relatives (defined before their runs)"}
 RELATIVES = {"mixed_batch": "mixed batches (RLPD)", "success_bonus": "the success bonus (DDPGfD)"}
 OTHER_LABEL = {"dual_buffer": "the dual buffer", "sac_her_per": "SAC+HER+PER"}
@@ -293,6 +295,18 @@ CLAIMS: List[Claim] = [
           ("count", N, "successful adaptation episodes", "Table 5: 250 vs <45 (of 24,000)"),
           ("final", "final_eval_success_rate", "final evaluation success", ""),
           ("curve", S, "mean evaluation success over the curve", "Fig. 5: dual buffer's curve above"))],
+    # Amendment 3 (results/paper_regime/AMENDMENT.md), before any of its runs: the `step` arm with R and E starting
+    # empty, a family of its own so that the preregistered family's correction stays as it was registered
+    *[Claim(f"regime_{metric_key}_step_empty", f"in the paper's regime (one update per env step, buffers starting "
+                                               f"empty), dual_buffer > sac_her_per: {label}",
+            "", metric, Side("paper_regime", "step_empty", DUAL), Side("paper_regime", "step_empty", HER),
+            relative_margin=metric == N, group="paper_regime_empty",
+            explains=f"in the paper's regime (one update per env step, buffers starting empty), dual buffer minus "
+                     f"SAC+HER+PER, {label}, is")
+      for metric_key, metric, label in (
+          ("count", N, "successful adaptation episodes"),
+          ("final", "final_eval_success_rate", "final evaluation success"),
+          ("curve", S, "mean evaluation success over the curve"))],
     # ------------------------------------------------------------------ the dual buffer's relatives
     # Defined with experiments relatives and relatives_scratch, before any of their runs: does a relative beat the
     # dual buffer, and SAC+HER+PER, on the count the paper reports? From scratch the sides pair by seed (one CPU

@@ -33,9 +33,11 @@ def _table():
         ("networks at the start", "the previous stage's (transfer)",
          lambda c, s: "random init" if s == 0 else "the previous stage's final networks"),
         ("optimizer at the start", "not stated", lambda c, s: "fresh Adam" if s == 0 else "fresh Adam (not carried)"),
-        ("replay at the start", "not stated", lambda c, s: "empty" if s == 0 else "the previous stage's, carried"),
+        ("replay at the start", "not stated",
+         lambda c, s: "empty" if s == 0 or not c.replay.carry_rows else "the previous stage's, carried"),
         ("dual buffer: E carried into this stage", "not stated",
-         lambda c, s: None if c.method != "dual_buffer" or s == 0 else c.replay.carry_success_buffer),
+         lambda c, s: None if c.method != "dual_buffer" or s == 0 else
+         c.replay.carry_success_buffer and c.replay.carry_rows),
         ("learning starts (env steps)", "not stated", lambda c, s: c.sac.learning_starts),
         ("evaluation at env step 0", "no", lambda c, s: c.eval_at_start),
     ]

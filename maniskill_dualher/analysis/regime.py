@@ -24,7 +24,8 @@ from . import stats
 
 RANDOM_ARM = "random"
 # arms decided group-sequentially (results/paper_regime/AMENDMENT.md): (experiment, arm, method A, method B)
-SEQUENTIAL = (("paper_regime", "step", "dual_buffer", "sac_her_per"),)
+SEQUENTIAL = (("paper_regime", "step", "dual_buffer", "sac_her_per"),
+              ("paper_regime", "step_empty", "dual_buffer", "sac_her_per"))   # Amendment 3: the same rule
 # window ends at evaluation points (every 30k env steps in the paper's regime); the random phase is 100k steps,
 # so its last evaluation inside it is at 90k
 WINDOWS = ((0, 90_000, "0-90k (random phase)"), (90_000, 150_000, "90k-150k"),

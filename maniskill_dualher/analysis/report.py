@@ -94,6 +94,11 @@ def adapt_budgets(curves: Sequence[dict]) -> Dict[tuple, int]:
 
 
 FAMILY_TITLES = [f"{t} (`{g}`)" for g, t in claims_mod.FAMILIES.items()]
+# summary.md's section of a claims family; a family not named here gets its FAMILIES description
+SECTION_TITLES = {"paper": "The paper's claims", "ablation": "Why: ablations of the adaptation stage",
+                  "updates": "Total updates vs R's share (defined before their runs)",
+                  "paper_regime": "The paper's own regime (preregistered)",
+                  "relatives": "The dual buffer's relatives (defined before their runs)"}
 
 
 def _per_task(budgets) -> str:
@@ -186,10 +191,8 @@ def summary_md(name: str, sweep: Optional[dict], scores, tables, claims, figures
     if unbalanced:
         s += ["Claims whose two sides are unbalanced by machine (a machine holds a different share of A's seeds "
               "than of B's; `machines_by_side` in `claims.csv`): " + ", ".join(unbalanced) + ".", ""]
-    for group, title in (("paper", "The paper's claims"), ("ablation", "Why: ablations of the adaptation stage"),
-                         ("updates", "Total updates vs R's share (defined before their runs)"),
-                         ("paper_regime", "The paper's own regime (preregistered)"),
-                         ("relatives", "The dual buffer's relatives (defined before their runs)")):
+    for group, family in claims_mod.FAMILIES.items():   # every family, one a recipe added included
+        title = SECTION_TITLES.get(group, family[:1].upper() + family[1:])
         rows = [r for r in claims if r["group"] == group]
         shown = [r for r in rows if claims_mod.measured(r)]   # a folder holds some experiments: the rest by name
         absent = [r["claim"] for r in rows if not claims_mod.measured(r)]

@@ -423,7 +423,8 @@ def _held_twice(rows: int, row_bytes: int, capacity: int, resume: bool, obs_dim:
 
 def node_memory(node, resume: bool = False) -> RunMemory:
     """``run_memory`` of a grid node (``grid.Node``): a chain stage that carries replay counts its earlier stages."""
-    carried = node.stages[:node.stage] if node.stages is not None and node.carry_replay else ()
+    carried = node.stages[:node.stage] if node.stages is not None and node.carry_replay and \
+        node.cfg.replay.carry_rows else ()
     return run_memory(node.cfg, carried, resume, label=node.rel)
 
 

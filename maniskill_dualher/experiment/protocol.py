@@ -1,8 +1,8 @@
 """The paper's multi-task transfer (section 3.1): a chain of stages, each its own run.
 
 Stage 0 trains from scratch; stage i+1 starts from stage i's final networks and, if
-``carry_replay``, its replay buffers (the paper's "prior policy" plus the samples it
-collected). The last stage is the *adaptation* stage (the paper's target task,
+``carry_replay`` (and its ``replay.carry_rows``), its replay buffers (the paper's "prior policy" plus the
+samples it collected). The last stage is the *adaptation* stage (the paper's target task,
 CloseMicrowave, trained 120 epochs instead of 200). HER uses k = 8 in the
 multi-task setting (paper 4.2.2) against 4 for single tasks.
 
@@ -94,7 +94,7 @@ def stage_lineage(stages: Sequence[RunConfig], i: int, carry_replay: bool) -> di
         "adaptation": i == len(stages) - 1,
         "chain": [s.env_id for s in stages],
         "parent": stage_dirname(stages, i - 1, carry_replay) if i > 0 else None,
-        "carry_replay": bool(carry_replay),
+        "carry_replay": bool(carry_replay and stages[i].replay.carry_rows),
     }
 
 
@@ -111,8 +111,11 @@ def stage_job(stages: Sequence[RunConfig], i: int, chain_dir: PathLike, carry_re
             raise ConfigError(f"stage {i} needs finished stage {i - 1} at {init_from}")
     if rundir.read_stage(out) is None:
         rundir.write_stage(out, stage_lineage(stages, i, carry_replay))
+    # a stage that does not take the rows (replay.carry_rows false) still finds its parent by the chain's flag, so
+    # it adapts the very prior a carrying arm adapts; the parent keeps its replay for the arms that do take it
     return dict(cfg=stages[i], out=str(out), init_from=None if init_from is None else str(init_from),
-                carry_replay=bool(carry_replay and i > 0), keep_replay=bool(carry_replay and i < len(stages) - 1))
+                carry_replay=bool(carry_replay and i > 0 and stages[i].replay.carry_rows),
+                keep_replay=bool(carry_replay and i < len(stages) - 1))
 
 
 def transfer_chain_dirs(out_dir: PathLike, stages: Sequence[RunConfig], carry_replay: bool = True) -> List[Path]:

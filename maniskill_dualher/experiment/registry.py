@@ -304,6 +304,16 @@ EXPERIMENTS: Dict[str, Experiment] = {e.name: e for e in (
             prior_method="sac_her_per",
             doc="one update per env step, compiled (the confirmatory study's second schedule; ~3.5M updates a run)",
             display="Table 3's settings, one update per env step"),
+        # results/paper_regime/AMENDMENT.md, third section: defined before any of its runs. The `step` arm's settings,
+        # adapting the same prior (one folder: the chain still carries, this stage takes none of the rows), with R
+        # and E starting empty: do the `step` arm's critics leave their bound because of the 108,000 rows carried
+        # from the source tasks (results/paper_regime_critics), and does the dual buffer help a learner without them?
+        Arm("step_empty", PAPER_REGIME_SETTINGS + ("adapt.sac.update_schedule=step", "adapt.sac.updates_per_step=1",
+                                                   "adapt.sac.compile=true", "adapt.replay.carry_rows=false"),
+            prior_method="sac_her_per",
+            doc="one update per env step, compiled, the buffers starting empty: the prior's networks, none of its "
+                "replay rows (Amendment 3; the follow-up of results/paper_regime_critics)",
+            display="Table 3's settings, one update per env step, buffers start empty", colour="#e6ab02"),
         # the count uniform-random actions give under the same episode rules, budget and prior (its R is carried
         # and filled as in the other arms; no update is ever made, so the prior's actor is only evaluated)
         Arm("random", PAPER_REGIME_SETTINGS + ("adapt.sac.random_steps=3600000", "adapt.sac.learning_starts=3600000"),
