@@ -926,7 +926,7 @@ def test_committed_critic_traces_say_what_their_report_lines_say(monkeypatch):
     root = Path(__file__).resolve().parents[1] / "results" / "paper_regime_critics"
     monkeypatch.chdir(root.parents[1])   # the lines name each folder as the command was given it, from the root
     folders = sorted((root / "study").iterdir()) + sorted(p for p in (root / "diagnostic").iterdir() if p.is_dir())
-    assert len(folders) == 8
+    assert len(folders) == 10
     want = "\n\n".join("\n".join(run_curves.summary(f.relative_to(root.parents[1]))) for f in folders) + "\n\n"
     assert (root / "report_lines.txt").read_text() == want
 
