@@ -925,8 +925,13 @@ def test_committed_critic_traces_say_what_their_report_lines_say(monkeypatch):
     from maniskill_dualher.analysis import run_curves
     root = Path(__file__).resolve().parents[1] / "results" / "paper_regime_critics"
     monkeypatch.chdir(root.parents[1])   # the lines name each folder as the command was given it, from the root
-    folders = sorted((root / "study").iterdir()) + sorted(p for p in (root / "diagnostic").iterdir() if p.is_dir())
-    assert len(folders) == 10
+    study = sorted((root / "study").iterdir())
+    # one study folder per merged `step` run, no more and none missing: the traces follow the confirmatory folder
+    with open(root.parent / "paper_regime_confirm" / "scores.csv", newline="") as f:
+        step_runs = {f"s{r['seed']}-{r['method']}" for r in csv.DictReader(f)
+                     if r["experiment"] == "paper_regime" and r["arm"] == "step" and r["role"] == "adapt"}
+    assert len(step_runs) >= 2 and {p.name for p in study} == step_runs
+    folders = study + sorted(p for p in (root / "diagnostic").iterdir() if p.is_dir())
     want = "\n\n".join("\n".join(run_curves.summary(f.relative_to(root.parents[1]))) for f in folders) + "\n\n"
     assert (root / "report_lines.txt").read_text() == want
 

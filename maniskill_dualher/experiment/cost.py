@@ -40,6 +40,7 @@ from typing import Callable, Dict, List, Optional, Sequence, Tuple
 
 from ..config import ConfigError
 from ..fileio import plural
+from .protocol import takes_rows
 
 # One env step of our tasks, one thread: 0.87 ms on CPU B (CloseMicrowave, facts 2026-12-03), 0.98 ms on CPU A
 # (py-spy of a quick run, facts 2026-12-02), 0.94-1.04 ms on CPU C (bench/env_speed.py: 961-1063 steps/s). Used
@@ -423,8 +424,7 @@ def _held_twice(rows: int, row_bytes: int, capacity: int, resume: bool, obs_dim:
 
 def node_memory(node, resume: bool = False) -> RunMemory:
     """``run_memory`` of a grid node (``grid.Node``): a chain stage that carries replay counts its earlier stages."""
-    carried = node.stages[:node.stage] if node.stages is not None and node.carry_replay and \
-        node.cfg.replay.carry_rows else ()
+    carried = node.stages[:node.stage] if node.stages is not None and takes_rows(node.cfg, node.carry_replay) else ()
     return run_memory(node.cfg, carried, resume, label=node.rel)
 
 

@@ -84,6 +84,13 @@ def stage_dirname(stages: Sequence[RunConfig], i: int, carry_replay: bool) -> st
     return f"stage{i}-{cfg.env_id}{tag}-{short_hash(key)}"
 
 
+def takes_rows(cfg: RunConfig, carry_replay: bool) -> bool:
+    """Whether a stage of a chain run with ``carry_replay`` starts from its parent's replay rows: the chain's flag
+    and the stage's own ``replay.carry_rows`` (an arm may take the prior's networks and none of its rows). Stage 0
+    has no parent; ``stage_job`` says so."""
+    return bool(carry_replay and cfg.replay.carry_rows)
+
+
 def stage_lineage(stages: Sequence[RunConfig], i: int, carry_replay: bool) -> dict:
     """What the report needs to place a stage: index, chain, parent folder (relative), carry flag."""
     return {
@@ -94,7 +101,7 @@ def stage_lineage(stages: Sequence[RunConfig], i: int, carry_replay: bool) -> di
         "adaptation": i == len(stages) - 1,
         "chain": [s.env_id for s in stages],
         "parent": stage_dirname(stages, i - 1, carry_replay) if i > 0 else None,
-        "carry_replay": bool(carry_replay and stages[i].replay.carry_rows),
+        "carry_replay": takes_rows(stages[i], carry_replay),
     }
 
 
@@ -114,7 +121,7 @@ def stage_job(stages: Sequence[RunConfig], i: int, chain_dir: PathLike, carry_re
     # a stage that does not take the rows (replay.carry_rows false) still finds its parent by the chain's flag, so
     # it adapts the very prior a carrying arm adapts; the parent keeps its replay for the arms that do take it
     return dict(cfg=stages[i], out=str(out), init_from=None if init_from is None else str(init_from),
-                carry_replay=bool(carry_replay and i > 0 and stages[i].replay.carry_rows),
+                carry_replay=i > 0 and takes_rows(stages[i], carry_replay),
                 keep_replay=bool(carry_replay and i < len(stages) - 1))
 
 
