@@ -936,6 +936,48 @@ def test_committed_critic_traces_say_what_their_report_lines_say(monkeypatch):
     assert (root / "report_lines.txt").read_text() == want
 
 
+def test_step_critics_puts_a_parts_runs_back_as_committed(tmp_path):
+    """bench/step_critics.py: seed 5's two step runs, laid out as a sweep wrote them (the clone's absolute path in
+    provenance), come back byte for byte as committed, and so does report_lines.txt; the same part again adds
+    nothing; a part whose run differs from the committed folder is refused in one line, nothing written."""
+    from bench_cli import run_bench
+    repo = Path(__file__).resolve().parents[1]
+    src = repo / "results" / "paper_regime_critics"
+    root = tmp_path / "repo"
+    critics = root / "results" / "paper_regime_critics"
+    shutil.copytree(src, critics, ignore=shutil.ignore_patterns("curves.png"))
+    (root / "results" / "paper_regime_confirm").mkdir()
+    shutil.copy(repo / "results" / "paper_regime_confirm" / "scores.csv", root / "results" / "paper_regime_confirm")
+    sweep = tmp_path / "s5"
+    for method in ("dual_buffer", "sac_her_per"):
+        run = sweep / "runs" / "chain" / f"{method}-s5" / "stage2-CloseMicrowave-v1"
+        shutil.copytree(src / "study" / f"s5-{method}", run, ignore=shutil.ignore_patterns("curves.png"))
+        prov = json.loads((run / "provenance.json").read_text())
+        for start in prov["starts"]:
+            start["repo"] = "/somewhere/frozen"
+        (run / "provenance.json").write_text(json.dumps(prov, indent=2) + "\n")
+        (run / "cell.json").write_text(json.dumps({"cells": [
+            {"experiment": "paper_regime", "arm": "step", "role": "adapt", "seed": 5, "method": method}]}))
+        shutil.rmtree(critics / "study" / f"s5-{method}")
+    (critics / "report_lines.txt").write_text("stale\n")
+    r = run_bench("step_critics.py", str(sweep), "--root", str(root))
+    assert r.returncode == 0, r.stderr
+    assert "added 2 of 2 runs" in r.stdout and "study/s5-dual_buffer: dual_buffer on CloseMicrowave-v1" in r.stdout
+    for method in ("dual_buffer", "sac_her_per"):
+        want = sorted(p.name for p in (src / "study" / f"s5-{method}").iterdir() if p.name != "curves.png")
+        got = critics / "study" / f"s5-{method}"
+        assert sorted(p.name for p in got.iterdir()) == want
+        assert all((got / n).read_bytes() == (src / "study" / f"s5-{method}" / n).read_bytes() for n in want)
+    assert (critics / "report_lines.txt").read_text() == (src / "report_lines.txt").read_text()
+    assert "added 0 of 2 runs" in run_bench("step_critics.py", str(sweep), "--root", str(root)).stdout
+    with open(sweep / "runs" / "chain" / "dual_buffer-s5" / "stage2-CloseMicrowave-v1" / "metrics.csv", "a") as f:
+        f.write("\n")
+    (critics / "report_lines.txt").write_text("kept\n")
+    r = run_bench("step_critics.py", str(sweep), "--root", str(root))
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "s5-dual_buffer" in r.stderr
+    assert (critics / "report_lines.txt").read_text() == "kept\n"
+
+
 def test_report_of_a_run_without_an_evaluation_says_so(tmp_path, capsys):
     run = tmp_path / "run"
     run.mkdir()
