@@ -88,6 +88,25 @@ def _tensor_digest(obj) -> str:
     return h.hexdigest()
 
 
+def load_tensors(path: Path):
+    """``torch.load(weights_only=True)``, numpy's own globals allowed by the names the file holds: a tree older
+    than the checkpoint of tensors (1c79b93) pickled numpy arrays, and this script runs on that tree too, where
+    ``rundir.load_torch_file`` does not exist yet. Any other global is refused, so no file runs code when read."""
+    import importlib
+
+    import torch
+    names = torch.serialization.get_unsafe_globals_in_checkpoint(path)
+    foreign = [n for n in names if not n.startswith("numpy.")]
+    if foreign:
+        raise ValueError(f"{path}: holds {', '.join(foreign)}, not tensors and numpy arrays; not loaded")
+    allowed = [(getattr(importlib.import_module(n.rpartition(".")[0]), n.rpartition(".")[2]), n) for n in names]
+    if names:  # a dtype's state is set on an instance of its class (numpy.dtypes.Float32DType, ...)
+        import numpy as np
+        allowed += list({type(np.dtype(c)) for c in np.typecodes["All"]})
+    with torch.serialization.safe_globals(allowed):
+        return torch.load(path, map_location="cpu", weights_only=True)
+
+
 def digest_run(run: Path, root: Path) -> dict:
     import torch
     lines = (run / "metrics.csv").read_text().splitlines()
@@ -95,10 +114,8 @@ def digest_run(run: Path, root: Path) -> dict:
     keep = [i for i, k in enumerate(head) if k != "wall_time_s"]
     lines = [",".join(r.split(",")[i] for i in keep) for r in lines]
     metrics = "\n".join(lines)
-    # weights_only=False on purpose: golden digests compare against older trees, whose checkpoints held numpy
-    # arrays; these are files this script's own runs just wrote in a temporary folder, never shared ones
-    state = torch.load(run / "checkpoint.pt", map_location="cpu", weights_only=False)
-    policy = torch.load(run / "policy.pt", map_location="cpu", weights_only=False)
+    state = load_tensors(run / "checkpoint.pt")
+    policy = load_tensors(run / "policy.pt")
     return {"folder": str(run.relative_to(root)), "metrics_sha": hashlib.sha256(metrics.encode()).hexdigest(),
             "rows": len(lines) - 1, "last_row": lines[-1], "agent_sha": _tensor_digest(state["agent"]),
             "counters": {k: v for k, v in state["counters"].items() if k != "wall_time"}, "actor_sha": _tensor_digest(policy["actor"])}
