@@ -978,6 +978,20 @@ def test_step_critics_puts_a_parts_runs_back_as_committed(tmp_path):
     assert (critics / "report_lines.txt").read_text() == "kept\n"
 
 
+def test_report_of_an_unfinished_run_says_last_and_how_it_resumes(tmp_path, capsys):
+    """A run still training (or killed) has no final evaluation yet: its last one, and the command that resumes it
+    (train's own folder: `train --out` again; a sweep's run, which has cell.json: its sweep)."""
+    run = tmp_path / "run"
+    _train_folder(run, done=False)
+    assert report.main([str(run)]) == 0
+    out = capsys.readouterr().out
+    assert "(unfinished: train again with the same --out to resume)" in out
+    assert "last evaluation (env step 300, 10 episodes): success 0.50" in out and "final evaluation" not in out
+    (run / "cell.json").write_text("{}")
+    assert report.main([str(run)]) == 0
+    assert "(unfinished: rerun its sweep to resume)" in capsys.readouterr().out
+
+
 def test_report_of_a_run_without_an_evaluation_says_so(tmp_path, capsys):
     run = tmp_path / "run"
     run.mkdir()

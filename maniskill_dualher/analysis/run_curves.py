@@ -158,7 +158,8 @@ def draw(folder: Path, path: Path) -> int:
 
 
 def summary(folder: Path) -> List[str]:
-    """A few lines on the run: what it is, its final evaluation, successful training episodes, env steps."""
+    """A few lines on the run: what it is, its final evaluation (its last, while unfinished), successful training
+    episodes, env steps."""
     folder = Path(folder)
     cfg = rundir.read_json(folder / rundir.CONFIG) or {}
     rows = rundir.read_metrics(folder)
@@ -167,9 +168,11 @@ def summary(folder: Path) -> List[str]:
     done = rundir.is_done(folder)
     ev = int(cfg.get("eval_episodes", 0) or 0)
     best = max(rows, key=lambda r: _value(r, "eval_success_rate"))  # the earliest of a tie, as policy_best.pt
+    # a sweep's run resumes by its sweep's command (it wrote cell.json), train's own by `train --out` again
+    resume = "rerun its sweep" if (folder / rundir.CELL).is_file() else "train again with the same --out"
     out = [f"{folder}: {cfg.get('method')} on {cfg.get('env_id')}, seed {cfg.get('seed')}, {steps:,} of {total:,} "
-           f"env steps " + ("(finished)" if done else "(unfinished: train again with the same --out to resume)"),
-           f"final evaluation (env step {steps:,}, {plural(ev, 'episode')}): success "
+           f"env steps " + ("(finished)" if done else f"(unfinished: {resume} to resume)"),
+           f"{'final' if done else 'last'} evaluation (env step {steps:,}, {plural(ev, 'episode')}): success "
            f"{_value(last, 'eval_success_rate'):.2f}, return {_value(last, 'eval_return'):.3g}",
            f"best evaluation: success {_value(best, 'eval_success_rate'):.2f} at env step "
            f"{int(_value(best, 'env_steps')):,}",
