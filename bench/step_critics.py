@@ -50,6 +50,13 @@ def committed_file(run: Path, name: str) -> bytes:
     return (json.dumps(prov, indent=2) + "\n").encode()
 
 
+def merged_step_runs(root: Path) -> set:
+    """s{seed}-{method} of every `step` adaptation run in results/paper_regime_confirm/scores.csv."""
+    with open(root / "results" / "paper_regime_confirm" / "scores.csv", newline="") as f:
+        return {f"s{r['seed']}-{r['method']}" for r in csv.DictReader(f)
+                if (r["experiment"], r["arm"], r["role"]) == ("paper_regime", "step", "adapt")}
+
+
 def report_lines(root: Path) -> str:
     """What `report RUN` says of each study and diagnostic folder, each named from the repository root."""
     critics = root / "results" / "paper_regime_critics"
@@ -72,9 +79,7 @@ def main(argv=None) -> int:
     unfinished = [str(r) for _, r in runs if not (r / "done.json").exists()]
     if unfinished:
         p.error(f"{unfinished[0]}: not finished (no done.json)")
-    with open(root / "results" / "paper_regime_confirm" / "scores.csv", newline="") as f:
-        merged = {f"s{r['seed']}-{r['method']}" for r in csv.DictReader(f)
-                  if (r["experiment"], r["arm"], r["role"]) == ("paper_regime", "step", "adapt")}
+    merged = merged_step_runs(root)
     missing = [name for name, _ in runs if name not in merged]
     if missing:
         p.error(f"{missing[0]}: not in results/paper_regime_confirm/scores.csv; merge the part first "

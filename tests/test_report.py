@@ -919,21 +919,17 @@ def test_report_of_one_run_says_where_its_critic_went_beside_what_its_rewards_al
     assert run_curves._symlog_ticks([1.0, 7e4, -500.0], 100.0) == [-1e3, -100.0, 0.0, 100.0, 1e3, 1e4, 1e5]
 
 
-def test_committed_critic_traces_say_what_their_report_lines_say(monkeypatch):
+def test_committed_critic_traces_say_what_their_report_lines_say():
     """results/paper_regime_critics: report_lines.txt is what `report RUN` says of each committed run folder
     today, so the HOW_MADE's table is checkable from the raw files."""
-    from maniskill_dualher.analysis import run_curves
-    root = Path(__file__).resolve().parents[1] / "results" / "paper_regime_critics"
-    monkeypatch.chdir(root.parents[1])   # the lines name each folder as the command was given it, from the root
-    study = sorted((root / "study").iterdir())
+    from bench_cli import load_bench
+    step_critics = load_bench("step_critics.py")   # the lines as the tool that writes them says them today
+    repo = Path(__file__).resolve().parents[1]
+    root = repo / "results" / "paper_regime_critics"
     # one study folder per merged `step` run, no more and none missing: the traces follow the confirmatory folder
-    with open(root.parent / "paper_regime_confirm" / "scores.csv", newline="") as f:
-        step_runs = {f"s{r['seed']}-{r['method']}" for r in csv.DictReader(f)
-                     if r["experiment"] == "paper_regime" and r["arm"] == "step" and r["role"] == "adapt"}
-    assert len(step_runs) >= 2 and {p.name for p in study} == step_runs
-    folders = study + sorted(p for p in (root / "diagnostic").iterdir() if p.is_dir())
-    want = "\n\n".join("\n".join(run_curves.summary(f.relative_to(root.parents[1]))) for f in folders) + "\n\n"
-    assert (root / "report_lines.txt").read_text() == want
+    step_runs = step_critics.merged_step_runs(repo)
+    assert len(step_runs) >= 2 and {p.name for p in (root / "study").iterdir()} == step_runs
+    assert (root / "report_lines.txt").read_text() == step_critics.report_lines(repo)
 
 
 def test_step_critics_puts_a_parts_runs_back_as_committed(tmp_path):
