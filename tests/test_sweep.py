@@ -329,11 +329,18 @@ RAY_GRID = ["--preset", "smoke", "--experiments", "single", "--tasks", "ReachTar
 
 
 @pytest.mark.skipif(not Path("/proc").is_dir(), reason="needs /proc to find the cluster's processes")
-def test_a_sweep_whose_ray_head_is_lost_resumes_to_the_same_tables(tmp_path):
+def test_a_sweep_whose_ray_head_is_lost_resumes_to_the_same_tables(tmp_path, monkeypatch):
     """`--backend ray --ray-address` on a `ray start` cluster: once a run has finished (and before all), the
     driver and every process of the head are SIGKILLed; a new head on the same address and the same command
-    finish the sweep with tables byte-identical to an uninterrupted inline sweep of the same definition."""
+    finish the sweep with tables byte-identical to an uninterrupted inline sweep of the same definition.
+    The machine holds a Ray token (as one does after its first local Ray sweep, Ray >= 2.5x), so the cluster
+    demands it: the driver must send it (it was refused before ``backends._send_ray_token_if_held``)."""
     pytest.importorskip("ray")
+    import uuid
+    token = tmp_path / "ray_auth_token"
+    token.write_text(uuid.uuid4().hex + uuid.uuid4().hex)
+    monkeypatch.setenv("RAY_AUTH_TOKEN_PATH", str(token))   # the cluster's and the sweeps' environment
+    monkeypatch.delenv("RAY_AUTH_MODE", raising=False)
     ref = tmp_path / "inline"
     assert run_sweep([*RAY_GRID, "--backend", "inline", "--out", str(ref)]) == 0
     runs = json.loads((ref / "sweep.json").read_text())["runs"]

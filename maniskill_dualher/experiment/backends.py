@@ -219,6 +219,20 @@ class InlineBackend:
         pass
 
 
+def _send_ray_token_if_held() -> None:
+    """Ray >= 2.5x turns token authentication on for a cluster started where a token is held (its first local
+    ``ray.init`` writes ``~/.ray/auth_token``), but ``ray.init(address=...)`` sends the token only with
+    ``RAY_AUTH_MODE=token``: unset, it is refused ("InvalidAuthToken") by a `ray start` cluster on a machine that
+    ever ran a local Ray sweep. Where the mode is unset and a token is held, send it; a cluster without
+    authentication accepts such a client too (measured, Ray 2.60)."""
+    if "RAY_AUTH_MODE" in os.environ:
+        return   # the user's choice
+    held = os.environ.get("RAY_AUTH_TOKEN") or Path(os.environ.get("RAY_AUTH_TOKEN_PATH")
+                                                     or Path.home() / ".ray" / "auth_token").is_file()
+    if held:
+        os.environ["RAY_AUTH_MODE"] = "token"
+
+
 class RayBackend:
     """Ray tasks (one CPU each); without an address a local instance is started and stopped.
 
@@ -227,6 +241,8 @@ class RayBackend:
 
     def __init__(self, workers: Optional[int], address: Optional[str], train: Callable,
                  retries: int = DEFAULT_RETRIES):
+        if address:
+            _send_ray_token_if_held()   # before ray is imported: it reads the mode once, at import
         import ray
         self.ray = ray
         self.retries = retries

@@ -12,6 +12,7 @@ field's comment there, so adding a setting to ``RunConfig`` makes it settable ev
 from __future__ import annotations
 
 import dataclasses
+import functools
 import typing
 from dataclasses import dataclass
 from typing import Any, Dict, Iterable, List, Optional, Sequence, Tuple
@@ -55,7 +56,10 @@ def format_value(v: Any) -> str:
     return str(v)
 
 
+@functools.lru_cache(maxsize=None)
 def _fields(cls) -> Dict[str, Tuple[Any, Any]]:
+    # cached: get_type_hints compiles every string annotation again on each call, and a sweep's plan parses
+    # ~250k overrides (measured: 170 of the 262 s of tests/test_recipes.py's planning went there)
     hints = typing.get_type_hints(cls)
     return {f.name: (hints[f.name], f) for f in dataclasses.fields(cls)}
 

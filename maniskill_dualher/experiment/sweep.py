@@ -12,6 +12,7 @@ plots and summary.md into ``--out``.
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import os
 import re
@@ -411,10 +412,8 @@ def _main(argv: Optional[Sequence[str]], held, train: Optional[Callable], report
         if a.ray_address and a.backend != "ray":
             raise ConfigError("--ray-address needs --backend ray")
         if a.backend == "ray":
-            try:
-                import ray  # noqa: F401
-            except ImportError:
-                raise ConfigError("--backend ray needs Ray: pip install 'ray[default]'") from None
+            if importlib.util.find_spec("ray") is None:   # not imported here: RayBackend sets its mode first
+                raise ConfigError("--backend ray needs Ray: pip install 'ray[default]'")
         if not (a.no_report or a.dry_run or a.emit_commands) and report is not None:  # its end, before hours
             need = missing_package("matplotlib", "the report at the end (--no-report skips it) draws its figures with")
             if need:
