@@ -333,7 +333,7 @@ def test_a_sweep_whose_ray_head_is_lost_resumes_to_the_same_tables(tmp_path, mon
     """`--backend ray --ray-address` on a `ray start` cluster: once a run has finished (and before all), the
     driver and every process of the head are SIGKILLed; a new head on the same address and the same command
     finish the sweep with tables byte-identical to an uninterrupted inline sweep of the same definition.
-    The machine holds a Ray token (as one does after its first local Ray sweep, Ray >= 2.5x), so the cluster
+    The machine holds a Ray token (as one does after its first local Ray sweep, Ray 2.60), so the cluster
     demands it: the driver must send it (it was refused before ``backends._send_ray_token_if_held``)."""
     pytest.importorskip("ray")
     import uuid

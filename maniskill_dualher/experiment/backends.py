@@ -220,7 +220,7 @@ class InlineBackend:
 
 
 def _send_ray_token_if_held() -> None:
-    """Ray >= 2.5x turns token authentication on for a cluster started where a token is held (its first local
+    """Ray 2.60 (here) turns token authentication on for a cluster started where a token is held (its first local
     ``ray.init`` writes ``~/.ray/auth_token``), but ``ray.init(address=...)`` sends the token only with
     ``RAY_AUTH_MODE=token``: unset, it is refused ("InvalidAuthToken") by a `ray start` cluster on a machine that
     ever ran a local Ray sweep. Where the mode is unset and a token is held, send it; a cluster without
