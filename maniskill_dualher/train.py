@@ -30,6 +30,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import signal
 import sys
 import time
 from pathlib import Path
@@ -46,6 +47,7 @@ from .faults import hold_point
 from .pack import Updater
 from .policy import save_policy
 from .replay.base import Episode
+from .signals import checkpoint_on_signals, stop_asked
 from .replay.storage import consuming_loaded_state
 from .rundir import CELL, CONFIG, POLICY, POLICY_BEST, RunFolder, array_state, load_checkpoint
 from .sac import SAC
@@ -127,7 +129,8 @@ class Between:
 # --------------------------------------------------------------------------- the loop
 def drive(runs: Sequence["Trainer"], stop_at: Optional[int] = None, close_finished: bool = True) -> List[dict]:
     """The training loop, for any number of runs side by side (a run alone is a pack of one). -> per run
-    ``{"row": final metrics}``, ``{"row": None}`` (paused at ``stop_at``: checkpointed) or ``{"error": e}``.
+    ``{"row": final metrics}``, ``{"row": None}`` (paused at ``stop_at`` or by a stop signal, ``checkpoint_on_signals``:
+    checkpointed) or ``{"error": e}``.
     A run that fails is written off alone (its traceback in its folder's ``error.txt``); the others go on.
     ``close_finished``: a finished run's env closes at once (a pack's memory); False keeps it for the caller."""
     results: List[Optional[dict]] = [None] * len(runs)
@@ -277,6 +280,8 @@ def train_runs(jobs: Sequence[Job], stop_at: Optional[int] = None, progress: Opt
                 results[k] = {"error": e}
         todo = [k for k, r in enumerate(results) if r is None]
         for k, r in zip(todo, drive(runs, stop_at)):
+            if r.get("row", 0) is None and stop_asked() is not None:
+                r["stopped"] = stop_asked()
             results[k] = r
     finally:
         for run in runs:
@@ -531,7 +536,7 @@ class Trainer:
         finished = c.env_steps >= self.cfg.total_steps
         if not (self.ended.any() or finished):
             return None
-        stopping = stop_at is not None and c.env_steps >= stop_at and not finished
+        stopping = ((stop_at is not None and c.env_steps >= stop_at) or stop_asked() is not None) and not finished
         due = Between(finished, stopping, checkpoint=c.env_steps >= self._next_ckpt or finished or stopping,
                       evaluate=c.env_steps >= self._next_eval or finished)
         if due.evaluate or due.checkpoint:
@@ -782,6 +787,11 @@ def main(argv=None) -> int:
     """One run (or its resume, or a finished run carried on with --continue); prints its final metrics row as
     JSON (a run found finished: and one line on stderr saying so); bad input: one line, exit code 2."""
     args = build_parser().parse_args(argv)
+    with checkpoint_on_signals():
+        return _train_main(args, argv)
+
+
+def _train_main(args, argv) -> int:
     try:
         if args.print_config:
             print(printed_config(args, sys.argv[1:] if argv is None else list(argv)), end="")
@@ -804,6 +814,12 @@ def main(argv=None) -> int:
     except TrainingDiverged as e:  # a failed run, not bad input
         print(f"error: {e}", file=sys.stderr)
         return 1
+    if final is None and stop_asked() is not None:  # 128 + the signal, as the shell reports a killed command
+        how = ("the same command resumes" if again is None else   # the folder is no longer a finished run
+               f"resume with --config {Path(again[0]) / CONFIG} --out {again[0]}")
+        print(f"stopped by {stop_asked()} at the end of an episode: checkpointed in "
+              f"{args.out if again is None else again[0]}; {how}", file=sys.stderr)
+        return 128 + int(getattr(signal, stop_asked()))
     print(json.dumps(final))
     return 0
 

@@ -110,6 +110,77 @@ def test_local_pool_worker_sigkilled_midrun_is_retried_from_checkpoint(reference
         json.loads((victim / "config.json").read_text())).total_steps
 
 
+@pytest.mark.skipif(not Path("/proc").is_dir(), reason="Linux: the pool's workers are signalled by pid")
+def test_a_stop_signal_to_the_sweep_checkpoints_its_runs_and_the_same_command_resumes(reference, tmp_path):
+    """SIGTERM to the sweep's own process (as `kill <pid>`; a scheduler signals every process, which the workers
+    take as one stop) while a chain stage runs in a pool worker: no run starts, the stage checkpoints at the end
+    of its episode in the same worker (not lost, not retried), the sweep exits 143 with one line and no report,
+    and the same command resumes it to the tables of an undisturbed sweep."""
+    out = tmp_path / "stopped"
+    log = tmp_path / "sweep.log"
+    hold = tmp_path / "hold"
+    hold.touch()
+    p = _popen_sweep(log, *CHAIN, "--out", str(out), "--workers", "1", hold=hold)
+    try:
+        deadline, victim = time.time() + 240, None
+        while time.time() < deadline and p.poll() is None and victim is None:
+            victim = _stage_in_flight(out)
+            time.sleep(0.01)
+        assert victim is not None, "no stage was in flight: " + log.read_text()[-2000:]
+        worker = backends.read_progress(victim)["pid"]
+        os.kill(p.pid, signal.SIGTERM)                   # the worker is held after a checkpoint: mid-run
+        time.sleep(0.5)
+        hold.unlink()
+        p.wait(timeout=240)
+    finally:
+        _kill_group(p)
+    text = log.read_text()
+    assert p.returncode == 128 + signal.SIGTERM, text[-3000:]
+    assert "stopped by SIGTERM: 1 run in flight checkpointed at the end of an episode; no report" in text, text[-3000:]
+    assert "LOST" not in text and "FAILED" not in text
+    assert not rundir.is_done(victim) and not (out / "summary.md").exists()
+    assert not alive(worker)                              # the pool ended with the sweep
+    assert _starts(victim) == 1
+    r = _sweep_cli(*CHAIN, "--out", str(out), "--workers", "1")
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert _starts(victim) == 2 and rundir.is_done(victim)
+    assert _tables(out) == _tables(reference)
+
+
+def test_a_stop_signal_to_an_inline_sweep_checkpoints_its_run_and_the_same_command_resumes(reference, tmp_path,
+                                                                                           monkeypatch, capsys):
+    """Inline (the run trains in the sweep's own process): SIGUSR1 while a chain stage is held after a checkpoint
+    stops it at the end of its episode; the sweep returns 138 and the same command ends with the reference's
+    tables."""
+    import threading
+    out = tmp_path / "inline"
+    hold = tmp_path / "hold"
+    hold.touch()
+    monkeypatch.setenv(faults.HOLD_AT, "checkpoint:*/stage[1-9]*")
+    monkeypatch.setenv(faults.HOLD_WHILE, str(hold))
+
+    def stop_when_held():
+        deadline = time.time() + 240
+        while time.time() < deadline and _stage_in_flight(out) is None:
+            time.sleep(0.01)
+        os.kill(os.getpid(), signal.SIGUSR1)
+        time.sleep(0.2)
+        hold.unlink()
+    t = threading.Thread(target=stop_when_held, daemon=True)
+    t.start()
+    rc = run_sweep([*CHAIN, "--out", str(out), "--backend", "inline"])
+    t.join()
+    err = capsys.readouterr().err
+    assert rc == 128 + signal.SIGUSR1, err[-3000:]
+    assert "stopped by SIGUSR1: 1 run in flight checkpointed at the end of an episode; no report" in err
+    victim = _stage_in_flight(out)
+    assert victim is not None and _starts(victim) == 1 and not (out / "summary.md").exists()
+    monkeypatch.delenv(faults.HOLD_AT)
+    assert run_sweep([*CHAIN, "--out", str(out), "--backend", "inline"]) == 0
+    assert _starts(victim) == 2 and rundir.is_done(victim)
+    assert _tables(out) == _tables(reference)
+
+
 def test_lost_worker_bound_and_failure_points_to_traceback(tmp_path, capsys):
     """run_grid: a lost run is resubmitted up to ``retries`` times, then fails; a raising run fails at
     once, and both name the run's error.txt when it has one."""

@@ -402,6 +402,52 @@ def test_a_run_killed_mid_way_resumes_bit_identically(tmp_path):
     assert len(starts) == 2                                        # two processes: the killed one, the resume
 
 
+def test_sigterm_checkpoints_at_the_episode_end_and_the_same_command_resumes_bit_identically(tmp_path):
+    """A scheduler's SIGTERM (or SIGUSR1) mid-run, long before any scheduled checkpoint: the run checkpoints at
+    the end of its episode, exits 143 with one line, and the same command ends with the metrics and final actor
+    of a run never stopped, bit for bit, in two starts."""
+    import os
+    import signal
+    import time
+
+    import torch
+    cfg = tiny(method="dual_buffer", steps=1500)
+    cfg.checkpoint_every = 100_000                                 # none scheduled before the end
+    straight = run_training(cfg, tmp_path / "a", show_progress=False)
+    (tmp_path / "cfg.json").write_text(cfg.to_json())
+    cmd = [sys.executable, "-m", "maniskill_dualher.train", "--config", str(tmp_path / "cfg.json"),
+           "--out", str(tmp_path / "b"), "--no-progress"]
+    repo = Path(__file__).resolve().parents[1]
+    env = {**os.environ, "PYTHONPATH": str(repo)}
+    p = subprocess.Popen(cmd, cwd=repo, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                         start_new_session=True)
+    metrics = tmp_path / "b" / "metrics.csv"
+    try:
+        deadline = time.time() + 300
+        while time.time() < deadline and p.poll() is None and \
+                not (metrics.exists() and len(metrics.read_text().splitlines()) >= 3):
+            time.sleep(0.01)
+        assert p.poll() is None, p.stderr.read()[-2000:]
+        os.kill(p.pid, signal.SIGTERM)
+        err = p.communicate(timeout=300)[1]
+    finally:
+        if p.poll() is None:
+            os.killpg(p.pid, signal.SIGKILL)
+    assert p.returncode == 128 + signal.SIGTERM, err[-2000:]
+    assert "stopped by SIGTERM at the end of an episode: checkpointed in" in err and "the same command resumes" in err
+    assert (tmp_path / "b" / "checkpoint.pt").exists() and not (tmp_path / "b" / "done.json").exists()
+    cut = read_rows(metrics)
+    assert 2 <= len(cut) < 15, len(cut)                            # stopped mid-way (evaluations every 100 of 1500)
+    r = subprocess.run(cmd, cwd=repo, env=env, capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    a, b = read_rows(tmp_path / "a" / "metrics.csv"), read_rows(metrics)
+    assert len(a) == 15 and a == b
+    assert json.loads((tmp_path / "b" / "done.json").read_text())["final"]["env_steps"] == straight["env_steps"]
+    wa, wb = (torch.load(tmp_path / d / "policy.pt", weights_only=True)["actor"] for d in "ab")
+    assert wa.keys() == wb.keys() and all(torch.equal(wa[k], wb[k]) for k in wa)
+    assert len(json.loads((tmp_path / "b" / "provenance.json").read_text())["starts"]) == 2
+
+
 # --------------------------------------------------------------------------- a finished run: refused, said, continued
 # ReachTarget: a hinged task's contacts make PhysX's CPU simulation differ by rounding after a resume's fresh env
 # (docs/ARCHITECTURE.md), so a resume or continuation there is not bit-identical; ReachTarget's is

@@ -12,15 +12,22 @@ in flight is submitted again. Progress: a worker writes ``progress.json`` (its e
 folder every few seconds and ``run_grid`` reads those while it waits, so the sweep's bar (and its ETA)
 moves during long runs, on every backend (Ray through the shared filesystem).
 
+A stop signal (SIGTERM, SIGUSR1, SIGINT; ``signals.py``) to the sweep stops it cleanly on the local pool and inline:
+no run starts, the runs in flight checkpoint at the end of their episode (the pool's workers get it as SIGUSR1),
+and ``run_grid`` raises ``SweepStopped``; the same command resumes. On Ray the sweep stops at once, as on Ctrl-C
+before, and its runs resume from their last checkpoints.
+
 ``emit_commands`` writes the grid as ``python -m maniskill_dualher.train`` command lines instead (a SLURM
 job array, ``docs/cluster.md``).
 """
 from __future__ import annotations
 
+import contextlib
 import inspect
 import json
 import os
 import shlex
+import signal
 import socket
 import time
 from pathlib import Path
@@ -29,6 +36,7 @@ from typing import Callable, Dict, List, Optional
 from .. import rundir
 from ..config import RunConfig
 from ..fileio import atomic_write_text, plural
+from ..signals import checkpoint_on_signals, stop_asked
 from . import protocol
 from .grid import Node, job_for
 
@@ -49,6 +57,18 @@ class WorkerLost(RuntimeError):
 
 
 # ----------------------------------------------------------------------------- in the worker
+class SweepStopped(Exception):
+    """A stop signal reached the sweep: ``runs``, those in flight, checkpointed at the end of their episode."""
+
+    def __init__(self, signal_name: str, runs: List[str]):
+        super().__init__(f"stopped by {signal_name}")
+        self.signal_name, self.runs = signal_name, runs
+
+    @property
+    def exit_code(self) -> int:  # as a shell reports a command killed by it
+        return 128 + int(getattr(signal, self.signal_name))
+
+
 class ProgressFile:
     """``Trainer.progress_hook``: writes ``<run>/progress.json`` at most every ``every_s`` seconds (and at
     the budget's end), atomically; ``listener()`` is called after each write (the inline backend's bar)."""
@@ -93,15 +113,22 @@ def _worker_init(parent_pid: int) -> None:
         pass
     if os.getppid() != parent_pid:
         os._exit(1)
+    # An idle worker that died of a terminal's Ctrl-C (sent to the whole process group) would break the pool:
+    # a worker takes SIGINT and SIGUSR1 only while it runs (``execute``; the sweep passes its stop on as
+    # SIGUSR1). SIGTERM keeps its default: the pool ends a broken pool's workers with it.
+    for name in ("SIGINT", "SIGUSR1"):
+        signal.signal(getattr(signal, name), signal.SIG_IGN)
     import torch
     torch.set_num_threads(1)
 
 
-def execute(payload: dict, train: Callable, listener: Optional[Callable[[], None]] = None) -> dict:
+def execute(payload: dict, train: Callable, listener: Optional[Callable[[], None]] = None,
+            take_signals: bool = False) -> dict:
     """Run one grid node (in a worker) with ``train`` (``train.train_runs``, handed in by the entry point
     ``maniskill_dualher/sweep.py``: the experiment layer does not import the training code) and return its
     final metrics row; a pack payload (``{"pack": [node payloads]}``, ``run_grid(pack=S)``) runs its nodes side
-    by side and returns each one's row or error: ``{"pack": [{"rel", "row"} | {"rel", "error"}]}``."""
+    by side and returns each one's row or error: ``{"pack": [{"rel", "row"} | {"rel", "error"}]}``; with
+    ``take_signals`` (a pool worker), a stop signal checkpoints its runs and they return ``{"rel", "stopped"}``."""
     import torch
     torch.set_num_threads(1)
     progress = ProgressFile(listener=listener)
@@ -115,13 +142,19 @@ def execute(payload: dict, train: Callable, listener: Optional[Callable[[], None
             if "pack" not in payload:
                 raise
             out.append({"rel": p["rel"], "error": _error_line(e)})
-    res = iter(train(jobs, progress=progress))  # jobs as dicts of train.Job's fields
+    with checkpoint_on_signals() if take_signals else contextlib.nullcontext():
+        res = iter(train(jobs, progress=progress))  # jobs as dicts of train.Job's fields
     for o in out:
         if "error" not in o:
             r = next(res)
             if "error" in r and "pack" not in payload:
                 raise r["error"]
-            o.update({"row": dict(r["row"])} if "error" not in r else {"error": _error_line(r["error"])})
+            if "error" in r:
+                o["error"] = _error_line(r["error"])
+            elif r["row"] is None:                       # paused by a stop signal: checkpointed
+                o["stopped"] = r.get("stopped", "a pause")
+            else:
+                o["row"] = dict(r["row"])
     return {"pack": out} if "pack" in payload else out[0]
 
 
@@ -161,11 +194,20 @@ class LocalBackend:
     def submit(self, payload):
         from concurrent.futures.process import BrokenProcessPool
         try:
-            return self.pool.submit(execute, payload, self.train)
+            return self.pool.submit(execute, payload, self.train, take_signals=True)
         except BrokenProcessPool:  # a worker died: the old pool's workers are being ended; start over
             self.pool.shutdown(wait=False, cancel_futures=True)
             self.pool = self._new_pool()
-            return self.pool.submit(execute, payload, self.train)
+            return self.pool.submit(execute, payload, self.train, take_signals=True)
+
+    def pass_stop(self, name: str) -> None:
+        """A stop signal that reached the sweep, passed on to every worker as SIGUSR1 (``kill <sweep pid>`` reaches
+        the sweep alone; a worker that got the signal itself takes this one as the same stop)."""
+        for pid in list(getattr(self.pool, "_processes", None) or {}):
+            try:
+                os.kill(pid, signal.SIGUSR1)
+            except ProcessLookupError:
+                pass
 
     def wait(self, handles, timeout: Optional[float] = None):
         from concurrent.futures import FIRST_COMPLETED, wait
@@ -199,6 +241,9 @@ class InlineBackend:
 
     def start(self) -> None:
         """Nothing to start: runs train in this process."""
+
+    def pass_stop(self, name: str) -> None:
+        """Nothing to pass on: the runs train in this process, which took the signal."""
 
     def submit(self, payload):
         try:
@@ -360,7 +405,9 @@ def run_grid(nodes: List[Node], out: Path, backend, progress: bool = True, retri
     With ``pack`` > 1 a worker gets up to that many ready runs with equal ``pack.pack_key`` at once and trains
     them side by side (``pack.py``; a run's results do not depend on its pack). A run whose worker died
     (``WorkerLost``) is submitted again, from its checkpoint, up to ``retries`` times (with its pack); a run
-    that raised is a failure at once (its traceback: ``<run>/error.txt``), the others of its pack go on."""
+    that raised is a failure at once (its traceback: ``<run>/error.txt``), the others of its pack go on. A stop
+    signal starts no more runs, lets those in flight checkpoint at the end of their episode (where the backend
+    passes it on: ``pass_stop``; else the sweep stops at once, as on Ctrl-C) and raises ``SweepStopped``."""
     from tqdm import tqdm
 
     out = Path(out)
@@ -385,54 +432,70 @@ def run_grid(nodes: List[Node], out: Path, backend, progress: bool = True, retri
         failed.append(n.rel)
         bar.write(f"FAILED {n.label} ({n.rel}): {why}{traceback_hint(out / n.rel)}")
 
+    stopped: List[str] = []
     try:
-        while todo or in_flight:
-            ready = [n for n in todo if n.parent is None or n.parent in done]
-            ready.sort(key=lambda n: -n.descendants)  # stable: grid order among equals
-            for group in packs(ready, max(0, backend.capacity - len(in_flight)), pack):
-                for n in group:
-                    tracker.start(n)
-                    todo.remove(n)
-                in_flight[backend.submit(_payload(group, out))] = group
-            if not in_flight:
-                break  # the rest waits on failed runs
-            finished = _wait(backend, list(in_flight), poll_s)
-            tracker.poll()
-            for h in finished:
-                group = in_flight.pop(h)
-                try:
-                    res = backend.result(h)
-                except WorkerLost as e:
-                    again = []
+        with checkpoint_on_signals(on_stop=getattr(backend, "pass_stop", _stop_now)):
+            while todo or in_flight:
+                ready = [n for n in todo if n.parent is None or n.parent in done]
+                ready.sort(key=lambda n: -n.descendants)  # stable: grid order among equals
+                free = 0 if stop_asked() else backend.capacity - len(in_flight)  # a stop starts no run
+                for group in packs(ready, max(0, free), pack):
                     for n in group:
-                        lost[n.rel] = lost.get(n.rel, 0) + 1
-                        if e.retryable and lost[n.rel] <= retries:
-                            bar.write(f"LOST {n.label} ({n.rel}): {e}; retry {lost[n.rel]}/{retries} from its "
-                                      f"last checkpoint{traceback_hint(out / n.rel)}")
-                            again.append(n)
-                        else:
-                            fail(n, f"worker lost{f' ({lost[n.rel]} times)' if e.retryable else ''}: {e}")
-                    if again:
-                        in_flight[backend.submit(_payload(again, out))] = again
-                    continue
-                except Exception as e:  # one failed run must not stop the others
-                    for n in group:
-                        fail(n, _error_line(e))
-                    continue
-                for n, r in zip(group, res["pack"] if "pack" in res else [res]):
-                    if "error" in r:
-                        fail(n, r["error"])
+                        tracker.start(n)
+                        todo.remove(n)
+                    in_flight[backend.submit(_payload(group, out))] = group
+                if not in_flight:
+                    break  # the rest waits on failed runs
+                finished = _wait(backend, list(in_flight), poll_s)
+                tracker.poll()
+                for h in finished:
+                    group = in_flight.pop(h)
+                    try:
+                        res = backend.result(h)
+                    except WorkerLost as e:
+                        again = []
+                        for n in group:
+                            lost[n.rel] = lost.get(n.rel, 0) + 1
+                            if e.retryable and lost[n.rel] <= retries:
+                                bar.write(f"LOST {n.label} ({n.rel}): {e}; retry {lost[n.rel]}/{retries} from its "
+                                          f"last checkpoint{traceback_hint(out / n.rel)}")
+                                again.append(n)
+                            else:
+                                fail(n, f"worker lost{f' ({lost[n.rel]} times)' if e.retryable else ''}: {e}")
+                        if again and not stop_asked():  # after a stop: the next sweep resumes them
+                            in_flight[backend.submit(_payload(again, out))] = again
                         continue
-                    done.add(n.rel)
-                    tracker.finish(n, ok=True)
-                    bar.set_postfix(runs=f"{len(done)}/{len(nodes)}")
-                    bar.write(f"done {n.label}: {headline(r['row'])}")
+                    except Exception as e:  # one failed run must not stop the others
+                        for n in group:
+                            fail(n, _error_line(e))
+                        continue
+                    for n, r in zip(group, res["pack"] if "pack" in res else [res]):
+                        if "error" in r:
+                            fail(n, r["error"])
+                            continue
+                        if "stopped" in r:
+                            tracker.finish(n, ok=False)
+                            stopped.append(n.rel)
+                            bar.write(f"stopped {n.label} ({n.rel}): checkpointed at the end of its episode")
+                            continue
+                        done.add(n.rel)
+                        tracker.finish(n, ok=True)
+                        bar.set_postfix(runs=f"{len(done)}/{len(nodes)}")
+                        bar.write(f"done {n.label}: {headline(r['row'])}")
+            if stop_asked():
+                raise SweepStopped(stop_asked(), stopped)
         blocked = [n.rel for n in todo]
         if blocked:
             bar.write(f"{plural(len(blocked), 'run')} not started: they start from a failed run")
     finally:
         bar.close()
     return failed + blocked
+
+
+def _stop_now(name: str) -> None:
+    """A backend that cannot pass a stop on (Ray): the sweep stops at once, its runs resume from their last
+    checkpoints."""
+    raise KeyboardInterrupt
 
 
 def packs(ready: List[Node], free: int, size: int) -> List[List[Node]]:

@@ -390,7 +390,7 @@ def main(argv: Optional[Sequence[str]] = None, train: Optional[Callable] = None,
 
 
 def _main(argv: Optional[Sequence[str]], held, train: Optional[Callable], report: Optional[Callable]) -> int:
-    from .backends import InlineBackend, LocalBackend, RayBackend, emit_commands, run_grid
+    from .backends import InlineBackend, LocalBackend, RayBackend, SweepStopped, emit_commands, run_grid
     from .lock import FolderLock
 
     parser = make_parser()
@@ -507,6 +507,10 @@ def _main(argv: Optional[Sequence[str]], held, train: Optional[Callable], report
                 print(line, flush=True)
         failed = run_grid(nodes, out, backend, retries=a.retries, pack=pack)
         cancel = False
+    except SweepStopped as e:
+        print(f"stopped by {e.signal_name}: {plural(len(e.runs), 'run')} in flight checkpointed at the end of an "
+              f"episode; no report; rerun the same command to resume", file=sys.stderr)
+        return e.exit_code
     except KeyboardInterrupt:
         print("interrupted: rerun the same command to resume", file=sys.stderr)
         return 130
