@@ -29,7 +29,7 @@ def stop_asked() -> Optional[str]:
 def checkpoint_on_signals(on_stop: Optional[Callable[[str], None]] = None):
     """Inside: SIGTERM, SIGUSR1 or SIGINT asks every run of this process to checkpoint at the end of its current
     episode (at most ``max_episode_steps`` env steps later, then one checkpoint write) and pause, so that the same
-    command resumes with no env step lost, bit-identical on CPU. This is what a scheduler's warning is for: SLURM
+    command resumes with no env step lost, as from any checkpoint. This is what a scheduler's warning is for: SLURM
     sends SIGTERM at a time limit or preemption and SIGKILL ``KillWait`` later (30 s by default), and
     ``--signal=B:USR1@300`` warns five minutes ahead (a checkpoint of the paper regime's full R, 10^7 rows, is
     ~4 GB to write). A second SIGINT after a first (Ctrl-C twice) interrupts at once: the last checkpoint stands.

@@ -47,10 +47,10 @@ from .faults import hold_point
 from .pack import Updater
 from .policy import save_policy
 from .replay.base import Episode
-from .signals import checkpoint_on_signals, stop_asked
 from .replay.storage import consuming_loaded_state
 from .rundir import CELL, CONFIG, POLICY, POLICY_BEST, RunFolder, array_state, load_checkpoint
 from .sac import SAC
+from .signals import checkpoint_on_signals, stop_asked
 
 DEMO_SEED_BASE = 2_000_000_000
 
@@ -785,7 +785,8 @@ def _say_once(line: str) -> Progress:
 
 def main(argv=None) -> int:
     """One run (or its resume, or a finished run carried on with --continue); prints its final metrics row as
-    JSON (a run found finished: and one line on stderr saying so); bad input: one line, exit code 2."""
+    JSON (a run found finished: and one line on stderr saying so); bad input: one line, exit code 2; stopped by a
+    signal (``signals.py``): checkpointed at the end of its episode, one line, exit code 128 + the signal."""
     args = build_parser().parse_args(argv)
     with checkpoint_on_signals():
         return _train_main(args, argv)
