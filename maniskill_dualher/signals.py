@@ -4,9 +4,9 @@ the same command resumes with no env step lost.
 A scheduler warns before it kills: SLURM sends SIGTERM at a job's time limit or preemption and SIGKILL
 ``KillWait`` later (30 s by default), and ``#SBATCH --signal=B:USR1@300`` sends SIGUSR1 five minutes ahead.
 Without this a killed run loses everything since its last scheduled checkpoint (the paper regime's
-``checkpoint_every`` is 300,000 env steps, ~20 minutes of a run on CPU C). ``train`` (``python -m maniskill_dualher.train``)
-and the sweep's local pool take these signals (``experiment/backends.py``: the sweep passes its own on to its
-workers and ends with ``128 + the signal``, as a shell reports a killed command).
+``checkpoint_every`` is 300,000 env steps, ~20 minutes of a run on CPU C). ``train`` (``python -m
+maniskill_dualher.train``) and the sweep's local pool take these signals (``experiment/backends.py``: the sweep
+passes its own on to its workers and ends with ``128 + the signal``, as a shell reports a killed command).
 """
 from __future__ import annotations
 
