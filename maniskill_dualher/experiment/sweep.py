@@ -343,6 +343,9 @@ def make_parser() -> argparse.ArgumentParser:
                    help="print the runs, their cost and --out, write nothing (any --out, read only: one another sweep "
                         "holds is named, not refused)")
     p.add_argument("--no-report", action="store_true", help="skip building the report at the end")
+    p.add_argument("--status", action="store_true",
+                   help="say where the sweep in --out stands (finished, in flight with its pace, failed, not started; "
+                        "who holds the folder) from its files, and exit; writes nothing")
     return p
 
 
@@ -395,6 +398,14 @@ def _main(argv: Optional[Sequence[str]], held, train: Optional[Callable], report
 
     parser = make_parser()
     a = parser.parse_args(argv)
+    if a.status:
+        from .status import status_lines
+        try:
+            print("\n".join(status_lines(Path(a.out if a.out else Path(RUNS_DIR) / a.preset))))
+        except ConfigError as e:
+            print(f"error: {e}", file=sys.stderr)
+            return 2
+        return 0
     try:  # validate everything before writing anything
         d = definition_from_args(a)
         capped = capped_arms(d)
