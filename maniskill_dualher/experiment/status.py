@@ -44,8 +44,10 @@ def _alive(pid: int) -> bool:
 def holder(out: Path) -> str:
     """Who holds ``out``'s lock, in words: running (its process lives, on this host), ended, or on another host."""
     h = _json(out / LOCK_FILE)
-    if not h or "pid" not in h:
-        return "no sweep has held this folder" if not (out / LOCK_FILE).exists() else "its lock names no holder"
+    if not (out / LOCK_FILE).exists():
+        return "no sweep has held this folder"
+    if not h or not str(h.get("pid", "")).isdigit():
+        return "its lock names no holder"
     who = f"pid {h['pid']} on host {h.get('host', '?')} since {h.get('since', '?')}"
     if h.get("host") != socket.gethostname():
         return f"last held by {who} (another host: not checked)"
