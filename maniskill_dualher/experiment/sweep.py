@@ -401,10 +401,12 @@ def _main(argv: Optional[Sequence[str]], held, train: Optional[Callable], report
     if a.status:
         from .status import status_lines
         try:
-            print("\n".join(status_lines(Path(a.out if a.out else Path(RUNS_DIR) / a.preset))))
+            print("\n".join(status_lines(Path(a.out if a.out else Path(RUNS_DIR) / a.preset))), flush=True)
         except ConfigError as e:
             print(f"error: {e}", file=sys.stderr)
             return 2
+        except BrokenPipeError:  # `--status | head -1`: the reader has what it wanted
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
     try:  # validate everything before writing anything
         d = definition_from_args(a)
