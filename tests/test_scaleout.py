@@ -57,6 +57,16 @@ def _stage_in_flight(out: Path, min_stage: int = 1):
     return None
 
 
+def _held_stage(p: subprocess.Popen, out: Path, log: Path) -> Path:
+    """The chain stage the sweep ``p`` holds after a checkpoint (``_stage_in_flight``), waited for."""
+    deadline, victim = time.time() + 240, None
+    while time.time() < deadline and p.poll() is None and victim is None:
+        victim = _stage_in_flight(out)
+        time.sleep(0.01)
+    assert victim is not None, "no stage was in flight: " + log.read_text()[-2000:]
+    return victim
+
+
 def _starts(run_dir: Path) -> int:
     return len(json.loads((run_dir / rundir.PROVENANCE).read_text())["starts"])
 
@@ -88,11 +98,7 @@ def test_local_pool_worker_sigkilled_midrun_is_retried_from_checkpoint(reference
     hold.touch()
     p = _popen_sweep(log, *CHAIN, "--out", str(out), "--workers", "1", "--retries", "1", hold=hold)
     try:
-        deadline, victim = time.time() + 240, None
-        while time.time() < deadline and p.poll() is None and victim is None:
-            victim = _stage_in_flight(out)
-            time.sleep(0.01)
-        assert victim is not None, "no stage was in flight: " + log.read_text()[-2000:]
+        victim = _held_stage(p, out, log)
         pid = backends.read_progress(victim)["pid"]
         assert pid != p.pid
         os.kill(pid, signal.SIGKILL)                     # held after its checkpoint: killed mid-run, every time
@@ -122,11 +128,7 @@ def test_a_stop_signal_to_the_sweep_checkpoints_its_runs_and_the_same_command_re
     hold.touch()
     p = _popen_sweep(log, *CHAIN, "--out", str(out), "--workers", "1", hold=hold)
     try:
-        deadline, victim = time.time() + 240, None
-        while time.time() < deadline and p.poll() is None and victim is None:
-            victim = _stage_in_flight(out)
-            time.sleep(0.01)
-        assert victim is not None, "no stage was in flight: " + log.read_text()[-2000:]
+        victim = _held_stage(p, out, log)
         worker = backends.read_progress(victim)["pid"]
         os.kill(p.pid, signal.SIGTERM)                   # the worker is held after a checkpoint: mid-run
         time.sleep(0.5)

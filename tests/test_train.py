@@ -359,6 +359,16 @@ def _copy_arrays(obj):
     return obj
 
 
+def _train_command(cfg: RunConfig, tmp_path: Path):
+    """``python -m maniskill_dualher.train`` of ``cfg`` into ``tmp_path / "b"``: (command, repository, env)."""
+    import os
+    (tmp_path / "cfg.json").write_text(cfg.to_json())
+    cmd = [sys.executable, "-m", "maniskill_dualher.train", "--config", str(tmp_path / "cfg.json"),
+           "--out", str(tmp_path / "b"), "--no-progress"]
+    repo = Path(__file__).resolve().parents[1]
+    return cmd, repo, {**os.environ, "PYTHONPATH": str(repo)}
+
+
 def test_a_run_killed_mid_way_resumes_bit_identically(tmp_path):
     """SIGKILL (not a pause at stop_at) once the run has written a checkpoint: the same command resumes from
     it and ends with the metrics (but for wall time) and the final actor's weights of a run never
@@ -371,11 +381,7 @@ def test_a_run_killed_mid_way_resumes_bit_identically(tmp_path):
     cfg = tiny(method="dual_buffer", steps=1000)
     cfg.checkpoint_every = 100
     straight = run_training(cfg, tmp_path / "a", show_progress=False)
-    (tmp_path / "cfg.json").write_text(cfg.to_json())
-    cmd = [sys.executable, "-m", "maniskill_dualher.train", "--config", str(tmp_path / "cfg.json"),
-           "--out", str(tmp_path / "b"), "--no-progress"]
-    repo = Path(__file__).resolve().parents[1]
-    env = {**os.environ, "PYTHONPATH": str(repo)}
+    cmd, repo, env = _train_command(cfg, tmp_path)
     p = subprocess.Popen(cmd, cwd=repo, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                          start_new_session=True)
     try:
@@ -414,11 +420,7 @@ def test_sigterm_checkpoints_at_the_episode_end_and_the_same_command_resumes_bit
     cfg = tiny(method="dual_buffer", steps=1500)
     cfg.checkpoint_every = 100_000                                 # none scheduled before the end
     straight = run_training(cfg, tmp_path / "a", show_progress=False)
-    (tmp_path / "cfg.json").write_text(cfg.to_json())
-    cmd = [sys.executable, "-m", "maniskill_dualher.train", "--config", str(tmp_path / "cfg.json"),
-           "--out", str(tmp_path / "b"), "--no-progress"]
-    repo = Path(__file__).resolve().parents[1]
-    env = {**os.environ, "PYTHONPATH": str(repo)}
+    cmd, repo, env = _train_command(cfg, tmp_path)
     p = subprocess.Popen(cmd, cwd=repo, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
                          start_new_session=True)
     metrics = tmp_path / "b" / "metrics.csv"
