@@ -2,7 +2,11 @@
 one thread, and optionally held after checkpoints (``faults.hold_point``) so a test disturbs a run in
 flight at a moment it chooses instead of racing it."""
 import os
+import signal
+import subprocess
+import time
 from pathlib import Path
+from typing import Callable
 
 from maniskill_dualher import faults
 
@@ -27,3 +31,22 @@ def alive(pid: int) -> bool:
         return (Path("/proc") / str(pid) / "stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
     except (OSError, IndexError):
         return False
+
+
+def kill_group(p: subprocess.Popen) -> None:
+    """SIGKILL to ``p``'s process group (started with ``start_new_session=True``: its workers too), reaped."""
+    try:
+        os.killpg(p.pid, signal.SIGKILL)
+    except ProcessLookupError:
+        pass
+    p.wait()
+
+
+def wait_until(p: subprocess.Popen, ready: Callable[[], bool], seconds: float) -> None:
+    """Poll until ``ready()`` or ``seconds`` pass, and assert that ``p`` still runs (its stderr's tail if not)."""
+    deadline = time.time() + seconds
+    while time.time() < deadline and p.poll() is None and not ready():
+        time.sleep(0.01)
+    if p.poll() is not None:
+        err = p.stderr.read() if p.stderr else ""
+        raise AssertionError((err.decode() if isinstance(err, bytes) else err)[-2000:])

@@ -3,11 +3,8 @@ resumes to the same metrics; one failing run fails alone; the sweep's scheduler 
 import csv
 import hashlib
 import itertools
-import os
-import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +18,7 @@ from maniskill_dualher.sac import SAC
 from maniskill_dualher.sac_fused import FusedUpdate
 from maniskill_dualher.train import Job, run_training, train_runs as run_pack
 
+from subprocs import kill_group, wait_until
 from test_train import tiny
 
 REPO = Path(__file__).resolve().parents[1]
@@ -156,17 +154,9 @@ def test_a_pack_killed_mid_run_resumes_to_the_same_metrics(alone, tmp_path):
     p = subprocess.Popen([sys.executable, "-c", script], cwd=REPO, start_new_session=True,
                          stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     try:
-        deadline = time.time() + 600
-        while time.time() < deadline and p.poll() is None:
-            if all((tmp_path / str(i) / "checkpoint.pt").exists() for i in range(len(CFGS))):
-                break
-            time.sleep(0.2)
-        assert p.poll() is None, p.stderr.read().decode()[-2000:]
-        os.killpg(p.pid, signal.SIGKILL)
-        p.wait()
+        wait_until(p, lambda: all((tmp_path / str(i) / "checkpoint.pt").exists() for i in range(len(CFGS))), 600)
     finally:
-        if p.poll() is None:
-            os.killpg(p.pid, signal.SIGKILL)
+        kill_group(p)
     assert not any((tmp_path / str(i) / "done.json").exists() for i in range(len(CFGS)))
     res = run_pack([Job(_cfg(*c, ckpt=100), str(tmp_path / str(i))) for i, c in enumerate(CFGS)])
     assert [sorted(r) for r in res] == [["row"]] * 3

@@ -20,7 +20,7 @@ from maniskill_dualher.experiment import backends, sweep
 from maniskill_dualher.sweep import main as run_sweep, train_runs as entry_train_runs  # noqa: F401
 from maniskill_dualher.experiment.grid import Node
 from maniskill_dualher.experiment.lock import LOCK_FILE, FolderLock
-from subprocs import alive, sweep_env
+from subprocs import alive, kill_group, sweep_env
 
 REPO = Path(__file__).resolve().parents[1]
 TABLES = ["claims.csv", "table5_multitask.csv", "scores.csv"]
@@ -71,14 +71,6 @@ def _starts(run_dir: Path) -> int:
     return len(json.loads((run_dir / rundir.PROVENANCE).read_text())["starts"])
 
 
-def _kill_group(p: subprocess.Popen) -> None:
-    try:
-        os.killpg(p.pid, signal.SIGKILL)
-    except ProcessLookupError:
-        pass
-    p.wait()
-
-
 @pytest.fixture(scope="module")
 def reference(tmp_path_factory):
     """The chain, undisturbed, inline: what every disturbed sweep must reproduce."""
@@ -105,7 +97,7 @@ def test_local_pool_worker_sigkilled_midrun_is_retried_from_checkpoint(reference
         hold.unlink()
         p.wait(timeout=240)
     finally:
-        _kill_group(p)
+        kill_group(p)
     text = log.read_text()
     assert p.returncode == 0, text[-3000:]
     assert "LOST" in text and "retry 1/1 from its last checkpoint" in text, text[-3000:]
@@ -135,7 +127,7 @@ def test_a_stop_signal_to_the_sweep_checkpoints_its_runs_and_the_same_command_re
         hold.unlink()
         p.wait(timeout=240)
     finally:
-        _kill_group(p)
+        kill_group(p)
     text = log.read_text()
     assert p.returncode == 128 + signal.SIGTERM, text[-3000:]
     assert "stopped by SIGTERM: 1 run in flight checkpointed at the end of an episode; no report" in text, text[-3000:]
@@ -266,7 +258,7 @@ def test_ray_cluster_node_removed_midrun_sweep_finishes_same_tables(reference, t
         assert _tables(out) == _tables(reference)
     finally:
         if p is not None:
-            _kill_group(p)
+            kill_group(p)
         cluster.shutdown()
 
 
@@ -289,9 +281,9 @@ def test_busy_folder_refused_then_free_after_sigkill(reference, tmp_path):
         assert len(err) == 1 and err[0].startswith("error: ") and "in use by another sweep" in err[0], err
         assert f"pid {first.pid} on host" in err[0]
         assert _sweep_cli(*CHAIN, "--out", str(out), "--dry-run").returncode == 0  # the dry run takes no lock
-        _kill_group(first)
+        kill_group(first)
     finally:
-        _kill_group(first)
+        kill_group(first)
     third = _sweep_cli(*CHAIN, "--out", str(out))           # the OS dropped the killed sweep's lock
     assert third.returncode == 0, third.stderr[-2000:]
     assert _tables(out) == _tables(reference)

@@ -984,7 +984,7 @@ def test_status_says_where_a_sweep_stands_from_its_files_and_writes_nothing(tmp_
     assert run_sweep(["--status", "--out", str(out)]) == 0
     text = capsys.readouterr().out
     assert f"{out}: 4 runs, 1 finished, 1 started and unfinished, 1 failed, 1 not started" in text
-    assert f"held by pid {os.getpid()} on host {socket.gethostname()} since 2026-01-01T00:00:00Z: running" in text
+    assert f"held by pid {os.getpid()} on host {socket.gethostname()}, since 2026-01-01T00:00:00Z: running" in text
     assert (f"{runs[2]} (dual_buffer seed 7 X-v1): 30,000 of 120,000 env steps (25.0%)" in text
             and "(pid 4242 on h); 200 env steps/s between its last two evaluations, ~8 min to go" in text), text
     assert f"FAILED {runs[1]} (dual_buffer seed 7 X-v1): ValueError: the last line" in text
@@ -993,8 +993,12 @@ def test_status_says_where_a_sweep_stands_from_its_files_and_writes_nothing(tmp_
     (out / ".sweep.lock").write_text(json.dumps({"pid": ended.pid, "host": socket.gethostname(), "since": "s"}))
     before[out / ".sweep.lock"] = (out / ".sweep.lock").stat().st_mtime_ns
     assert run_sweep(["--status", "--out", str(out)]) == 0
-    assert f"last held by pid {ended.pid} on host {socket.gethostname()} since s, which has ended" in \
+    assert f"last held by pid {ended.pid} on host {socket.gethostname()}, since s, which has ended" in \
         capsys.readouterr().out
+    (out / ".sweep.lock").write_text("")   # what a sweep leaves when it releases the folder
+    before[out / ".sweep.lock"] = (out / ".sweep.lock").stat().st_mtime_ns
+    assert run_sweep(["--status", "--out", str(out)]) == 0
+    assert "; its lock names no holder" in capsys.readouterr().out
     assert {p: p.stat().st_mtime_ns for p in out.rglob("*")} == before
     assert run_sweep(["--status", "--out", str(tmp_path / "none")]) == 2
     assert capsys.readouterr().err.strip() == \

@@ -11,6 +11,7 @@ import pytest
 from maniskill_dualher.config import TASKS, ConfigError, ReplayConfig, RunConfig, SACConfig
 from maniskill_dualher.methods import METHOD_SPECS
 from maniskill_dualher.train import run_training
+from subprocs import kill_group, wait_until
 
 
 def tiny(env_id="ReachTarget-v1", method="dual_buffer", steps=400, **kw) -> RunConfig:
@@ -373,10 +374,6 @@ def test_a_run_killed_mid_way_resumes_bit_identically(tmp_path):
     """SIGKILL (not a pause at stop_at) once the run has written a checkpoint: the same command resumes from
     it and ends with the metrics (but for wall time) and the final actor's weights of a run never
     interrupted, bit for bit."""
-    import os
-    import signal
-    import time
-
     import torch
     cfg = tiny(method="dual_buffer", steps=1000)
     cfg.checkpoint_every = 100
@@ -385,15 +382,9 @@ def test_a_run_killed_mid_way_resumes_bit_identically(tmp_path):
     p = subprocess.Popen(cmd, cwd=repo, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                          start_new_session=True)
     try:
-        deadline = time.time() + 300
-        while time.time() < deadline and p.poll() is None and not (tmp_path / "b" / "checkpoint.pt").exists():
-            time.sleep(0.01)
-        assert p.poll() is None, p.stderr.read().decode()[-2000:]
-        os.killpg(p.pid, signal.SIGKILL)
-        p.wait()
+        wait_until(p, (tmp_path / "b" / "checkpoint.pt").exists, 300)
     finally:
-        if p.poll() is None:
-            os.killpg(p.pid, signal.SIGKILL)
+        kill_group(p)
     assert not (tmp_path / "b" / "done.json").exists()
     cut = read_rows(tmp_path / "b" / "metrics.csv")
     assert 1 <= len(cut) < 10, len(cut)                           # killed mid-way: evaluations every 100 of 1000
@@ -414,7 +405,6 @@ def test_sigterm_checkpoints_at_the_episode_end_and_the_same_command_resumes_bit
     of a run never stopped, bit for bit, in two starts."""
     import os
     import signal
-    import time
 
     import torch
     cfg = tiny(method="dual_buffer", steps=1500)
@@ -425,16 +415,11 @@ def test_sigterm_checkpoints_at_the_episode_end_and_the_same_command_resumes_bit
                          start_new_session=True)
     metrics = tmp_path / "b" / "metrics.csv"
     try:
-        deadline = time.time() + 300
-        while time.time() < deadline and p.poll() is None and \
-                not (metrics.exists() and len(metrics.read_text().splitlines()) >= 3):
-            time.sleep(0.01)
-        assert p.poll() is None, p.stderr.read()[-2000:]
+        wait_until(p, lambda: metrics.exists() and len(metrics.read_text().splitlines()) >= 3, 300)
         os.kill(p.pid, signal.SIGTERM)
         err = p.communicate(timeout=300)[1]
     finally:
-        if p.poll() is None:
-            os.killpg(p.pid, signal.SIGKILL)
+        kill_group(p)
     assert p.returncode == 128 + signal.SIGTERM, err[-2000:]
     assert "stopped by SIGTERM at the end of an episode: checkpointed in" in err and "the same command resumes" in err
     assert (tmp_path / "b" / "checkpoint.pt").exists() and not (tmp_path / "b" / "done.json").exists()

@@ -30,12 +30,27 @@ class FolderBusy(ConfigError):
     """Another live sweep holds the folder's lock."""
 
 
-def _holder_text(raw: bytes) -> str:
+def parse_holder(raw: bytes) -> Optional[dict]:
+    """The holder a lock file's bytes name (pid, host, since), or None: empty (released), torn or foreign."""
     try:
         h = json.loads(raw.decode())
-        return f"pid {h['pid']} on host {h['host']}, since {h['since']}"
-    except (ValueError, KeyError, TypeError, UnicodeDecodeError):
+    except (ValueError, UnicodeDecodeError):
+        return None
+    return h if isinstance(h, dict) and str(h.get("pid", "")).isdigit() else None
+
+
+def read_holder(folder: Union[str, Path]) -> Optional[dict]:
+    """The holder named by ``folder``'s lock file, read without locking (``sweep --status``)."""
+    try:
+        return parse_holder((Path(folder) / LOCK_FILE).read_bytes())
+    except OSError:
+        return None
+
+
+def holder_text(h: Optional[dict]) -> str:
+    if not h:
         return "holder unknown"
+    return f"pid {h['pid']} on host {h.get('host', '?')}, since {h.get('since', '?')}"
 
 
 class FolderLock:
@@ -61,7 +76,7 @@ class FolderLock:
             if holder is None:
                 raise ConfigError(f"cannot lock {self.path} ({os.strerror(e.errno or 0)}); "
                                   f"use an --out on a filesystem with file locks") from None
-            raise FolderBusy(f"{self.folder} is in use by another sweep ({_holder_text(holder)}); "
+            raise FolderBusy(f"{self.folder} is in use by another sweep ({holder_text(parse_holder(holder))}); "
                              f"wait for it to end, or use another --out") from None
         me = {"pid": os.getpid(), "host": socket.gethostname(),
               "since": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")}

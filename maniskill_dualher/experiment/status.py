@@ -9,7 +9,6 @@ recent pace), and the folder's lock (``lock.py``: who holds it; on this host, wh
 from __future__ import annotations
 
 import csv
-import json
 import os
 import socket
 import time
@@ -20,15 +19,7 @@ from .. import rundir
 from ..config import ConfigError
 from ..fileio import plural
 from .backends import read_progress
-from .lock import LOCK_FILE
-
-
-def _json(path: Path) -> Optional[dict]:
-    try:
-        d = json.loads(path.read_text())
-        return d if isinstance(d, dict) else None
-    except (OSError, ValueError):
-        return None
+from .lock import LOCK_FILE, holder_text, read_holder
 
 
 def _alive(pid: int) -> bool:
@@ -43,12 +34,12 @@ def _alive(pid: int) -> bool:
 
 def holder(out: Path) -> str:
     """Who holds ``out``'s lock, in words: running (its process lives, on this host), ended, or on another host."""
-    h = _json(out / LOCK_FILE)
     if not (out / LOCK_FILE).exists():
         return "no sweep has held this folder"
-    if not h or not str(h.get("pid", "")).isdigit():
+    h = read_holder(out)
+    if not h:   # released (emptied) by its last holder, or torn
         return "its lock names no holder"
-    who = f"pid {h['pid']} on host {h.get('host', '?')} since {h.get('since', '?')}"
+    who = holder_text(h)
     if h.get("host") != socket.gethostname():
         return f"last held by {who} (another host: not checked)"
     return f"held by {who}: running" if _alive(int(h["pid"])) else f"last held by {who}, which has ended"
@@ -67,7 +58,10 @@ def pace(run_dir: Path) -> Optional[float]:
 
 
 def _label(run_dir: Path) -> str:
-    cfg = _json(run_dir / rundir.CONFIG) or {}
+    try:
+        cfg = rundir.read_json(run_dir / rundir.CONFIG) or {}
+    except (OSError, ValueError):   # a label is not worth failing the status over
+        cfg = {}
     return f"{cfg.get('method', '?')} seed {cfg.get('seed', '?')} {cfg.get('env_id', '?')}"
 
 
