@@ -46,7 +46,12 @@ def committed_file(run: Path, name: str) -> bytes:
         return data
     prov = json.loads(data)
     for start in prov["starts"]:
-        start["repo"] = "."   # the frozen clone's path on the machine that ran it says nothing to a reader
+        # the frozen clone's path on the machine that ran it says nothing to a reader: "." and paths below it
+        clone = str(start["repo"]).rstrip("/") + "/"
+        if "argv" in start:
+            start["argv"] = [a[len(clone):] if isinstance(a, str) and a.startswith(clone) else a
+                             for a in start["argv"]]
+        start["repo"] = "."
     return (json.dumps(prov, indent=2) + "\n").encode()
 
 

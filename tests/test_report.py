@@ -934,7 +934,7 @@ def test_committed_critic_traces_say_what_their_report_lines_say():
 
 def test_step_critics_puts_a_parts_runs_back_as_committed(tmp_path):
     """bench/step_critics.py: seed 5's two step runs, laid out as a sweep wrote them (the clone's absolute path in
-    provenance), come back byte for byte as committed, and so does report_lines.txt; the same part again adds
+    provenance, and in its argv), come back byte for byte as committed, and so does report_lines.txt; the same part again adds
     nothing; a part whose run differs from the committed folder is refused in one line, nothing written."""
     from bench_cli import run_bench
     repo = Path(__file__).resolve().parents[1]
@@ -951,6 +951,7 @@ def test_step_critics_puts_a_parts_runs_back_as_committed(tmp_path):
         prov = json.loads((run / "provenance.json").read_text())
         for start in prov["starts"]:
             start["repo"] = "/somewhere/frozen"
+            start["argv"][0] = "/somewhere/frozen/" + start["argv"][0]   # python -m gives the module's full path
         (run / "provenance.json").write_text(json.dumps(prov, indent=2) + "\n")
         (run / "cell.json").write_text(json.dumps({"cells": [
             {"experiment": "paper_regime", "arm": "step", "role": "adapt", "seed": 5, "method": method}]}))
