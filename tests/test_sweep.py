@@ -962,13 +962,13 @@ def test_sweep_json_records_each_arms_settings_as_run_and_an_older_folder_withou
 def test_status_says_where_a_sweep_stands_from_its_files_and_writes_nothing(tmp_path, capsys):
     """`sweep --status --out DIR` on a sweep with one run of each kind: finished (done.json), failed
     (error.txt: its last line), started (progress.json: env steps of total, its pid, the pace between its last
-    two evaluations and what is left at it), not started; and its lock's holder, alive or ended. Nothing in the
+    two evaluations and what is left at it, when its last checkpoint was written, or that it has none), not started; and its lock's holder, alive or ended. Nothing in the
     folder changes; a folder with no sweep.json is one line and exit 2."""
     import os
     import socket
     import subprocess
     out = tmp_path / "sw"
-    runs = [f"runs/single/r{i}" for i in range(4)]
+    runs = [f"runs/single/r{i}" for i in range(5)]
     for rel in runs:
         (out / rel).mkdir(parents=True)
         (out / rel / "config.json").write_text(json.dumps({"method": "dual_buffer", "seed": 7, "env_id": "X-v1"}))
@@ -978,15 +978,21 @@ def test_status_says_where_a_sweep_stands_from_its_files_and_writes_nothing(tmp_
     (out / runs[2] / "progress.json").write_text(json.dumps(
         {"env_steps": 30_000, "total_steps": 120_000, "pid": 4242, "host": "h", "time": 1000.0}))
     (out / runs[2] / "metrics.csv").write_text("env_steps,eval_return,wall_time_s\n0,0,0\n10000,0,40\n20000,0,90\n")
+    (out / runs[2] / "checkpoint.pt").write_bytes(b"")
+    os.utime(out / runs[2] / "checkpoint.pt", (time.time() - 1200, time.time() - 1200))
+    (out / runs[3] / "progress.json").write_text(json.dumps({"env_steps": 0, "total_steps": 1}))   # no checkpoint
     (out / ".sweep.lock").write_text(json.dumps({"pid": os.getpid(), "host": socket.gethostname(),
                                                  "since": "2026-01-01T00:00:00Z"}))
     before = {p: p.stat().st_mtime_ns for p in out.rglob("*")}
     assert run_sweep(["--status", "--out", str(out)]) == 0
     text = capsys.readouterr().out
-    assert f"{out}: 4 runs, 1 finished, 1 started and unfinished, 1 failed, 1 not started" in text
+    assert f"{out}: 5 runs, 1 finished, 2 started and unfinished, 1 failed, 1 not started" in text
     assert f"held by pid {os.getpid()} on host {socket.gethostname()}, since 2026-01-01T00:00:00Z: running" in text
     assert (f"{runs[2]} (dual_buffer seed 7 X-v1): 30,000 of 120,000 env steps (25.0%)" in text
-            and "(pid 4242 on h); 200 env steps/s between its last two evaluations, ~8 min to go" in text), text
+            and "(pid 4242 on h); 200 env steps/s between its last two evaluations, ~8 min to go; "
+                "last checkpoint written 20 min ago" in text), text
+    assert f"{runs[3]} (dual_buffer seed 7 X-v1): 0 of 1 env steps (0.0%); no checkpoint yet (a resume starts it " \
+           "over)" in text
     assert f"FAILED {runs[1]} (dual_buffer seed 7 X-v1): ValueError: the last line" in text
     ended = subprocess.Popen(["true"])
     ended.wait()

@@ -3,7 +3,7 @@
 A sweep of hours runs in the background (``nohup``, a cluster), where its progress bar is a log of carriage
 returns. This reads what the sweep and its runs already write, and writes nothing: ``sweep.json`` (the runs it
 planned), each run's ``done.json`` (finished), ``error.txt`` (failed), ``progress.json`` (env steps, pid, host,
-every few seconds while it trains) and ``metrics.csv`` (env steps and wall time at each evaluation: the run's
+every few seconds while it trains), the time of its ``checkpoint.pt`` (where a resume goes back to) and ``metrics.csv`` (env steps and wall time at each evaluation: the run's
 recent pace), and the folder's lock (``lock.py``: who holds it; on this host, whether that process lives).
 """
 from __future__ import annotations
@@ -57,6 +57,16 @@ def pace(run_dir: Path) -> Optional[float]:
     return (s1 - s0) / (w1 - w0) if w1 > w0 and s1 > s0 else None
 
 
+def checkpoint_age(run_dir: Path, now: float) -> str:
+    """When the run's last checkpoint was written: what a resume goes back to (the steps after it are run again).
+    Read from the file's time, not the file: a checkpoint with a full replay is gigabytes."""
+    try:
+        written = (run_dir / rundir.CHECKPOINT).stat().st_mtime
+    except OSError:
+        return "no checkpoint yet (a resume starts it over)"
+    return f"last checkpoint written {_hours(max(0.0, now - written))} ago"
+
+
 def _label(run_dir: Path) -> str:
     try:
         cfg = rundir.read_json(run_dir / rundir.CONFIG) or {}
@@ -102,7 +112,7 @@ def status_lines(out: Path, now: Optional[float] = None) -> List[str]:
         r = pace(d)
         if r:
             line += f"; {r:,.0f} env steps/s between its last two evaluations, ~{_hours((total - steps) / r)} to go"
-        lines.append(line)
+        lines.append(line + "; " + checkpoint_age(d, now))
     for rel in failed:
         text = (out / rel / rundir.ERROR).read_text(errors="replace").strip().splitlines()
         lines.append(f"  FAILED {rel} ({_label(out / rel)}): {text[-1] if text else 'see error.txt'}")
