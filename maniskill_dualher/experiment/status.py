@@ -3,8 +3,8 @@
 A sweep of hours runs in the background (``nohup``, a cluster), where its progress bar is a log of carriage
 returns. This reads what the sweep and its runs already write, and writes nothing: ``sweep.json`` (the runs it
 planned), each run's ``done.json`` (finished), ``error.txt`` (failed), ``progress.json`` (env steps, pid, host,
-every few seconds while it trains), the time of its ``checkpoint.pt`` (where a resume goes back to) and ``metrics.csv`` (env steps and wall time at each evaluation: the run's
-recent pace), and the folder's lock (``lock.py``: who holds it; on this host, whether that process lives).
+every few seconds while it trains), the time of its ``checkpoint.pt`` (where a resume goes back to) and
+``metrics.csv`` (env steps and wall time at each evaluation: the run's recent pace), and the folder's lock (``lock.py``: who holds it; on this host, whether that process lives).
 """
 from __future__ import annotations
 
